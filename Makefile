@@ -1,0 +1,42 @@
+# WireCraft: `make demo` and `make test` work on a fresh machine (they create .venv when missing).
+SHELL := /bin/bash
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed-dev
+
+# Python 3.12 is required. Try, in order: $(PYTHON), python3.12 on PATH, pyenv's 3.12.x.
+PYTHON ?= $(shell for c in python3.12 "$$(pyenv root 2>/dev/null)/versions/3.12.1/bin/python3.12" $$(ls -d "$$(pyenv root 2>/dev/null)"/versions/3.12*/bin/python3.12 2>/dev/null); do \
+	  "$$c" -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && { echo "$$c"; break; }; done)
+
+.PHONY: demo test bench lint venv install clean
+
+$(PY):
+	@if [ -z "$(PYTHON)" ]; then \
+	  echo "error: Python 3.12 not found. Install it (e.g. 'pyenv install 3.12' or your OS package 'python3.12')," >&2; \
+	  echo "       or pass its path: make PYTHON=/path/to/python3.12" >&2; exit 1; fi
+	"$(PYTHON)" -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+
+venv: $(PY)
+
+$(STAMP): pyproject.toml | $(PY)
+	$(PY) -m pip install -q -e '.[dev]'
+	@touch $@
+
+install: $(STAMP)
+
+demo: install
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/wirecraft demo --out out/demo
+
+test: install
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -n 2 -q
+
+bench: install
+	$(PY) benchmarks/bench_wires.py
+
+lint: install
+	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/ruff format --check src tests benchmarks
+
+clean:
+	rm -rf $(VENV) out build *.egg-info
