@@ -1,0 +1,24 @@
+"""Template for a new connector family: copy to NAME.py, fill in, import it in __init__.py.
+
+Only the cross-section of the insertable shell is needed: the port (socket walls offset by the
+clearance, back stop, sites), STL export and the registry-parametrised tests follow from it.
+Override ``shell_shapes`` for non-rectangular shells and ``port_extra_shapes`` for key
+features inside the socket.
+"""
+
+from __future__ import annotations
+
+from wirecraft.assets.connectors.base import Connector
+
+# @CONNECTORS.register("my_connector")   # uncomment in your copy
+
+
+class TemplateConnector(Connector):
+    symmetry = 2
+    description = "what it looks like, main dimensions"
+    shell_length = 0.015  # m, insertable length
+    tail_half = (0.008, 0.007, 0.005)  # m, half extents of the part the gripper holds
+    width, height = 0.010, 0.005
+
+    def shell_rects(self):
+        return [(-self.width / 2, self.width / 2, -self.height / 2, self.height / 2)]

@@ -1,0 +1,21 @@
+"""USB-A-like shell, 12 x 4.5 mm: two-fold symmetric outside.
+
+The real connector's asymmetric inner tongue is not modelled as a collision body: at the
+benchmark's clearances a thin tongue would not survive the rattle slack (see base.py, Keying).
+"""
+
+from __future__ import annotations
+
+from wirecraft.assets.connectors.base import CONNECTORS, Connector
+
+
+@CONNECTORS.register("usb_a")
+class UsbAConnector(Connector):
+    symmetry = 2
+    description = "USB-A-like shell, 12 x 4.5 mm"
+    shell_length = 0.014
+    tail_half = (0.008, 0.0080, 0.0040)
+    width, height = 0.012, 0.0045
+
+    def shell_rects(self):
+        return [(-self.width / 2, self.width / 2, -self.height / 2, self.height / 2)]
