@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import manifold3d
 import mujoco
 import numpy as np
 import trimesh
@@ -139,14 +140,26 @@ def _shape_mesh(shape: Shape) -> trimesh.Trimesh:
     return mesh
 
 
-def to_mesh(shapes: Sequence[Shape], *, scale: float = 1.0) -> trimesh.Trimesh:
-    """One watertight solid: the boolean union of ``shapes``, scaled (1000 gives millimetres)."""
+def to_mesh(
+    shapes: Sequence[Shape], *, scale: float = 1.0, tolerance: float = 1e-3
+) -> trimesh.Trimesh:
+    """One watertight solid: the boolean union of ``shapes``, scaled (1000 gives millimetres).
+
+    Overlapping primitives leave sliver edges; simplifying the union to ``tolerance`` (in the
+    scaled unit) removes them, so the solid stays watertight after a float32 STL round trip.
+    """
     if not shapes:
         raise ValueError("to_mesh needs at least one shape")
-    meshes = [_shape_mesh(s) for s in shapes]
-    solid = meshes[0] if len(meshes) == 1 else trimesh.boolean.union(meshes, engine="manifold")
-    if scale != 1.0:
-        solid.apply_scale(scale)
+    solids = []
+    for shape in shapes:
+        mesh = _shape_mesh(shape)
+        mesh.apply_scale(scale)
+        solids.append(manifold3d.Manifold(manifold3d.Mesh(
+            vert_properties=np.asarray(mesh.vertices, dtype=np.float32),
+            tri_verts=np.asarray(mesh.faces, dtype=np.uint32))))
+    union = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add).simplify(tolerance)
+    out = union.to_mesh()
+    solid = trimesh.Trimesh(vertices=out.vert_properties[:, :3], faces=out.tri_verts, process=False)
     if not solid.is_watertight:
         raise RuntimeError("the union of the part's shapes is not watertight")
     return solid
