@@ -1,0 +1,157 @@
+"""The ``wirecraft`` program: one entry point, one sub-command per job."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callable]] = {}
+
+
+def command(name: str, help_text: str, configure: Callable[[argparse.ArgumentParser], None]):
+    def decorator(func):
+        COMMANDS[name] = (help_text, configure, func)
+        return func
+
+    return decorator
+
+
+def write_json(path: str | None, payload) -> None:
+    """Write results atomically (a crash never leaves half a file)."""
+    if not path:
+        return
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(payload, indent=2, sort_keys=True) + "\n")
+    os.replace(tmp, path)
+
+
+# -- list ---------------------------------------------------------------------------------------
+def _list_args(p):
+    p.add_argument("--json", metavar="PATH", help="also write the listing as JSON")
+
+
+@command("list", "list connectors, wire models, printable parts and scenes", _list_args)
+def cmd_list(args) -> int:
+    from wirecraft.assets.connectors import CONNECTORS
+    from wirecraft.assets.export import part_names
+    from wirecraft.assets.wires import WIRE_MODELS
+    from wirecraft.scenes import SCENES
+
+    listing = {
+        "connectors": {
+            name: {"symmetry": cls.symmetry, "description": cls.description}
+            for name, cls in ((n, CONNECTORS.get(n)) for n in CONNECTORS)
+        },
+        "wire_models": WIRE_MODELS.names(),
+        "parts": part_names(),
+        "scenes": SCENES.names(),
+    }
+    print("connectors:")
+    for name, info in listing["connectors"].items():
+        fold = "continuous" if info["symmetry"] == 0 else f"{info['symmetry']}-fold"
+        print(f"  {name:12s} {fold:11s} {info['description']}")
+    print("wire models: " + ", ".join(listing["wire_models"]))
+    print("printable parts: " + ", ".join(listing["parts"]))
+    print("scenes: " + ", ".join(listing["scenes"]))
+    write_json(args.json, listing)
+    return 0
+
+
+# -- view ---------------------------------------------------------------------------------------
+def _view_args(p):
+    p.add_argument("--scene", default="wires", help="scene to show (see `wirecraft list`)")
+    p.add_argument("--headless", action="store_true", help="render an image instead of a window")
+    p.add_argument("--out", default="wirecraft_view.png", help="image path for --headless")
+    p.add_argument("--settle", type=float, default=1.0, help="seconds simulated before the shot")
+    p.add_argument("--width", type=int, default=960)
+    p.add_argument("--height", type=int, default=720)
+
+
+@command("view", "show a scene in MuJoCo's viewer, or render it (--headless)", _view_args)
+def cmd_view(args) -> int:
+    import mujoco
+
+    from wirecraft.render import FastRenderer, save_png
+    from wirecraft.scene import compile_spec
+    from wirecraft.scenes import SCENES
+
+    build = SCENES.get(args.scene)
+    if args.settle < 0:
+        raise ValueError(f"--settle must be >= 0, got {args.settle}")
+    spec, viewpoint = build()
+    model = compile_spec(spec)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    if not args.headless:
+        if not os.environ.get("DISPLAY") and sys.platform.startswith("linux"):
+            raise RuntimeError("no display: use --headless --out FILE.png")
+        import mujoco.viewer
+
+        mujoco.viewer.launch(model, data)
+        return 0
+    for _ in range(int(args.settle / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+    with FastRenderer(model, height=args.height, width=args.width) as renderer:
+        path = save_png(renderer.render(data, viewpoint.camera()), args.out)
+    print(f"wrote {path}")
+    return 0
+
+
+# -- export-stl ---------------------------------------------------------------------------------
+def _export_args(p):
+    target = p.add_mutually_exclusive_group(required=True)
+    target.add_argument("--part", help="part name (see `wirecraft list`), e.g. displayport_port")
+    target.add_argument("--all", action="store_true", help="export every part into --out (a folder)")
+    p.add_argument("--clearance", type=float, default=0.003, help="socket gap per side, metres")
+    p.add_argument("--out", required=True, help="STL file (or folder with --all)")
+
+
+@command("export-stl", "write 3D-printable STL files (millimetres) of plugs, ports, fixtures",
+         _export_args)
+def cmd_export_stl(args) -> int:
+    from tqdm import tqdm
+
+    from wirecraft.assets.export import export_stl, part_mesh, part_names
+
+    if not args.all:
+        path = export_stl(args.part, args.out, clearance=args.clearance)
+        mesh = part_mesh(args.part, args.clearance)
+        print(f"wrote {path}: {mesh.extents.round(2).tolist()} mm, {mesh.volume:.0f} mm^3")
+        return 0
+    for part in tqdm(part_names(), desc="export-stl", unit="part"):
+        export_stl(part, Path(args.out) / f"{part}.stl", clearance=args.clearance)
+    print(f"wrote {len(part_names())} parts to {args.out}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="wirecraft",
+        description="WireCraft: simulation benchmark for wire and cable manipulation.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (help_text, configure, _) in COMMANDS.items():
+        configure(sub.add_parser(name, help=help_text, description=help_text))
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return COMMANDS[args.command][2](args)
+    except (ValueError, RuntimeError) as err:
+        print(f"wirecraft {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"wirecraft {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
