@@ -8,7 +8,9 @@ STAMP := $(VENV)/.installed-dev
 PYTHON ?= $(shell for c in python3.12 "$$(pyenv root 2>/dev/null)/versions/3.12.1/bin/python3.12" $$(ls -d "$$(pyenv root 2>/dev/null)"/versions/3.12*/bin/python3.12 2>/dev/null); do \
 	  "$$c" -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && { echo "$$c"; break; }; done)
 
-.PHONY: demo test bench lint venv install clean
+GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1
+
+.PHONY: demo test bench lint venv install sysdeps clean
 
 $(PY):
 	@if [ -z "$(PYTHON)" ]; then \
@@ -25,10 +27,23 @@ $(STAMP): pyproject.toml | $(PY)
 
 install: $(STAMP)
 
-demo: install
+# Off-screen rendering on the CPU needs Mesa's EGL. Installed with apt-get when missing (CI runs
+# as root); otherwise the missing packages are named.
+sysdeps:
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libEGL_mesa.so.0' || ! ldconfig -p | grep -q 'libgbm.so.1'; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing OpenGL libraries for headless rendering: $(GL_PACKAGES)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(GL_PACKAGES) >/dev/null; \
+	  else \
+	    echo "error: headless rendering needs the system packages $(GL_PACKAGES) (Debian/Ubuntu names)" >&2; \
+	    echo "       install them, e.g. 'sudo apt-get install $(GL_PACKAGES)'" >&2; exit 1; \
+	  fi; \
+	fi
+
+demo: install sysdeps
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/wirecraft demo --out out/demo
 
-test: install
+test: install sysdeps
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -n 2 -q
 
 bench: install
