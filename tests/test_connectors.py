@@ -1,4 +1,4 @@
-"""Connector fit checked in simulation: aligned plugs seat, press fits and wrong orientations do not."""
+"""Connector fit in simulation: aligned plugs seat; press fits and wrong orientations do not."""
 
 from __future__ import annotations
 
@@ -80,8 +80,9 @@ def test_sites_follow_frame_convention(name):
     connector = make_connector(name, 0.003)
     spec = new_spec()
     add_port(spec, connector)
-    add_plug(spec, connector, free=False, pos=(connector.cavity_depth - connector.plug_length,
-                                               0.0, 0.0))
+    add_plug(
+        spec, connector, free=False, pos=(connector.cavity_depth - connector.plug_length, 0.0, 0.0)
+    )
     model = compile_spec(spec)
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)

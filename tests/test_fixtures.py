@@ -42,12 +42,17 @@ def test_channel_floor_and_walls_where_the_predicate_says(variant):
         direction = np.array([math.cos(heading), math.sin(heading)])
         normal = np.array([-direction[1], direction[0]])
         for u in np.linspace(0.1, 0.9, 5) * cfg.segment_length:
-            for v, expect in ((0.0, "floor"), (0.8 * cfg.inner_width / 2, "floor"),
-                              (cfg.inner_width / 2 + cfg.wall / 2, "wall")):
+            for v, expect in (
+                (0.0, "floor"),
+                (0.8 * cfg.inner_width / 2, "floor"),
+                (cfg.inner_width / 2 + cfg.wall / 2, "wall"),
+            ):
                 for side in (1.0, -1.0):
                     xy = rot @ (start + u * direction + side * v * normal) + np.asarray(pos[:2])
                     z = ray_height(model, data, *xy)
-                    want = pos[2] + (cfg.floor if expect == "floor" else cfg.floor + cfg.wall_height)
+                    want = pos[2] + (
+                        cfg.floor if expect == "floor" else cfg.floor + cfg.wall_height
+                    )
                     assert z == pytest.approx(want, abs=1e-6), (variant, u, v, side)
                     inside = placed.contains(np.array([[*xy, z + 0.002]]))[0]
                     assert inside == (expect == "floor")

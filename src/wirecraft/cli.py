@@ -107,13 +107,18 @@ def cmd_view(args) -> int:
 def _export_args(p):
     target = p.add_mutually_exclusive_group(required=True)
     target.add_argument("--part", help="part name (see `wirecraft list`), e.g. displayport_port")
-    target.add_argument("--all", action="store_true", help="export every part into --out (a folder)")
+    target.add_argument(
+        "--all", action="store_true", help="export every part into --out (a folder)"
+    )
     p.add_argument("--clearance", type=float, default=0.003, help="socket gap per side, metres")
     p.add_argument("--out", required=True, help="STL file (or folder with --all)")
 
 
-@command("export-stl", "write 3D-printable STL files (millimetres) of plugs, ports, fixtures",
-         _export_args)
+@command(
+    "export-stl",
+    "write 3D-printable STL files (millimetres) of plugs, ports, fixtures",
+    _export_args,
+)
 def cmd_export_stl(args) -> int:
     from tqdm import tqdm
 
@@ -128,6 +133,36 @@ def cmd_export_stl(args) -> int:
         export_stl(part, Path(args.out) / f"{part}.stl", clearance=args.clearance)
     print(f"wrote {len(part_names())} parts to {args.out}")
     return 0
+
+
+# -- demo ---------------------------------------------------------------------------------------
+def _demo_args(p):
+    p.add_argument("--out", default="out/demo", help="folder for the images and summary")
+    p.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per wire model")
+    p.add_argument("--json", metavar="PATH", help="summary as JSON (default: OUT/summary.json)")
+
+
+@command(
+    "demo", "run the main job on the CPU: drop every wire model onto the task board", _demo_args
+)
+def cmd_demo(args) -> int:
+    from wirecraft.demo import run_demo
+
+    if not args.seconds > 0:
+        raise ValueError(f"--seconds must be > 0, got {args.seconds}")
+    rows = run_demo(args.out, seconds=args.seconds)
+    header = (
+        f"{'wire':12s} {'steps/s':>9s} {'x real time':>11s} {'in channel':>10s} {'diverged':>8s}"
+    )
+    print(header)
+    for r in rows:
+        print(
+            f"{r['wire']:12s} {r['physics_steps_per_s']:>9} {r['realtime_factor']:>11} "
+            f"{r['fraction_in_channel']:>10.0%} {str(r['diverged']):>8s}"
+        )
+    write_json(args.json or str(Path(args.out) / "summary.json"), {"rows": rows})
+    print(f"wrote {args.out}/wires.png and the summary")
+    return 1 if any(r["diverged"] for r in rows) else 0
 
 
 def build_parser() -> argparse.ArgumentParser:

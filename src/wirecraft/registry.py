@@ -7,12 +7,9 @@ over the registry, STL export) by decorating its class with ``@REGISTRY.register
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from typing import Generic, TypeVar
-
-T = TypeVar("T")
 
 
-class Registry(Generic[T]):
+class Registry[T]:
     """An ordered mapping from names to registered objects of one kind."""
 
     def __init__(self, kind: str) -> None:

@@ -25,8 +25,7 @@ def wires_scene():
     connector = make_connector("ethernet")
     for i, model in enumerate(WIRE_MODELS):
         y = 0.1 * (i - 1)
-        wire = add_wire(spec, WireConfig(model=model), name=f"wire_{model}",
-                        pos=(-0.2, y, 0.06))
+        wire = add_wire(spec, WireConfig(model=model), name=f"wire_{model}", pos=(-0.2, y, 0.06))
         pos, quat = wire.end_pose("end")
         add_plug(spec, connector, name=f"plug_{model}", pos=tuple(pos), quat=tuple(quat))
         wire.attach(spec, "end", f"plug_{model}")
@@ -42,8 +41,13 @@ def connectors_scene():
         connector = make_connector(name)
         y = 0.05 * (i - (len(CONNECTORS) - 1) / 2)
         add_port(spec, connector, name=f"{name}_port", pos=(0.02, y, 0.02))
-        add_plug(spec, connector, name=f"{name}_plug", free=False,
-                 pos=(-0.01 - connector.plug_length, y, 0.02))
+        add_plug(
+            spec,
+            connector,
+            name=f"{name}_plug",
+            free=False,
+            pos=(-0.01 - connector.plug_length, y, 0.02),
+        )
     return spec, ViewPoint(lookat=(0.0, 0.0, 0.02), distance=0.32, azimuth=-30, elevation=-25)
 
 
@@ -55,8 +59,13 @@ def fixtures_scene():
     board = 0.01
     add_board(spec)
     for i, opening in enumerate((0.007, 0.007, 0.012)):
-        add_clip(spec, ClipConfig(opening=opening), name=f"clip_{i}",
-                 pos=(-0.1 + 0.1 * i, 0.1, board), yaw=float(np.radians(10 * (i - 1))))
+        add_clip(
+            spec,
+            ClipConfig(opening=opening),
+            name=f"clip_{i}",
+            pos=(-0.1 + 0.1 * i, 0.1, board),
+            yaw=float(np.radians(10 * (i - 1))),
+        )
     add_channel(spec, name="channel_straight", pos=(-0.2, 0.0, board))
     add_channel(spec, ChannelConfig.curved(), name="channel_curved", pos=(-0.2, -0.1, board))
     return spec, ViewPoint(lookat=(0.0, 0.0, 0.0), distance=0.8, azimuth=150, elevation=-45)

@@ -154,9 +154,14 @@ def to_mesh(
     for shape in shapes:
         mesh = _shape_mesh(shape)
         mesh.apply_scale(scale)
-        solids.append(manifold3d.Manifold(manifold3d.Mesh(
-            vert_properties=np.asarray(mesh.vertices, dtype=np.float32),
-            tri_verts=np.asarray(mesh.faces, dtype=np.uint32))))
+        solids.append(
+            manifold3d.Manifold(
+                manifold3d.Mesh(
+                    vert_properties=np.asarray(mesh.vertices, dtype=np.float32),
+                    tri_verts=np.asarray(mesh.faces, dtype=np.uint32),
+                )
+            )
+        )
     union = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add).simplify(tolerance)
     out = union.to_mesh()
     solid = trimesh.Trimesh(vertices=out.vert_properties[:, :3], faces=out.tri_verts, process=False)

@@ -117,8 +117,10 @@ class Connector:
     def port_shapes(self) -> list[Shape]:
         """Socket walls around the cavity, a back stop, then any key features."""
         depth = self.cavity_depth
-        walls = [_rect_box(r, 0.0, depth) for r in _rect_difference(self.port_outer_rect(),
-                                                                     self.cavity_rects())]
+        walls = [
+            _rect_box(r, 0.0, depth)
+            for r in _rect_difference(self.port_outer_rect(), self.cavity_rects())
+        ]
         back = _rect_box(self.port_outer_rect(), depth, depth + WALL)
         return walls + [back] + self.port_extra_shapes()
 
@@ -164,8 +166,9 @@ def shape_volume(shape: Shape) -> float:
         return 8.0 * float(np.prod(shape.half))
     if isinstance(shape, Prism):
         yz = np.asarray(shape.profile)
-        area = 0.5 * abs(np.dot(yz[:, 0], np.roll(yz[:, 1], -1)) - np.dot(yz[:, 1],
-                                                                          np.roll(yz[:, 0], -1)))
+        area = 0.5 * abs(
+            np.dot(yz[:, 0], np.roll(yz[:, 1], -1)) - np.dot(yz[:, 1], np.roll(yz[:, 0], -1))
+        )
         return area * abs(shape.x1 - shape.x0)
     return float(np.pi * shape.radius**2 * 2.0 * shape.half_length)
 
@@ -192,10 +195,24 @@ def add_plug(
         body.add_freejoint(name=f"{name}_free")
     shapes = connector.plug_shapes()
     density = mass / sum(shape_volume(s) for s in shapes)
-    add_to_body(spec, body, connector.plug_tail_shapes(), f"{name}_tail", rgba=PLUG_RGBA,
-                friction=physics.PLUG_FRICTION, density=density)
-    add_to_body(spec, body, connector.plug_shell_shapes(), f"{name}_shell", rgba=SHELL_RGBA,
-                friction=physics.PLUG_FRICTION, density=density)
+    add_to_body(
+        spec,
+        body,
+        connector.plug_tail_shapes(),
+        f"{name}_tail",
+        rgba=PLUG_RGBA,
+        friction=physics.PLUG_FRICTION,
+        density=density,
+    )
+    add_to_body(
+        spec,
+        body,
+        connector.plug_shell_shapes(),
+        f"{name}_shell",
+        rgba=SHELL_RGBA,
+        friction=physics.PLUG_FRICTION,
+        density=density,
+    )
     body.add_site(name=f"{name}_wire", pos=(0.0, 0.0, 0.0), size=(0.002, 0, 0))
     body.add_site(name=f"{name}_grasp", pos=(connector.tail_half[0], 0.0, 0.0), size=(0.002, 0, 0))
     body.add_site(name=f"{name}_tip", pos=(connector.plug_length, 0.0, 0.0), size=(0.002, 0, 0))
@@ -213,11 +230,16 @@ def add_port(
 ) -> mujoco.MjsBody:
     """Add the socket as a fixed body (a child of ``parent``, the world by default)."""
     body = (parent or spec.worldbody).add_body(name=name, pos=pos, quat=quat)
-    add_to_body(spec, body, connector.port_shapes(), f"{name}_wall", rgba=PORT_RGBA,
-                friction=physics.PLUG_FRICTION)
+    add_to_body(
+        spec,
+        body,
+        connector.port_shapes(),
+        f"{name}_wall",
+        rgba=PORT_RGBA,
+        friction=physics.PLUG_FRICTION,
+    )
     body.add_site(name=f"{name}_entry", pos=(0.0, 0.0, 0.0), size=(0.002, 0, 0))
-    body.add_site(name=f"{name}_seated", pos=(connector.cavity_depth, 0.0, 0.0),
-                  size=(0.002, 0, 0))
+    body.add_site(name=f"{name}_seated", pos=(connector.cavity_depth, 0.0, 0.0), size=(0.002, 0, 0))
     return body
 
 

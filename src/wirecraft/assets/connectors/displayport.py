@@ -45,8 +45,10 @@ class DisplayPortConnector(Connector):
         if not self.rail_height:
             return [shell]
         y0, y1, z0, z1 = self._rail_rect()
-        rail = Box(((x1 - x0) / 2, (y1 - y0) / 2, (z1 - z0) / 2),
-                   ((x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2))
+        rail = Box(
+            ((x1 - x0) / 2, (y1 - y0) / 2, (z1 - z0) / 2),
+            ((x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2),
+        )
         return [shell, rail]
 
     def port_extra_shapes(self) -> list[Shape]:
