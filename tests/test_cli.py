@@ -1,0 +1,105 @@
+"""The ``wirecraft`` program: sub-commands, machine-readable output, clear errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from wirecraft.assets.connectors import CONNECTORS
+from wirecraft.assets.wires import WIRE_MODELS
+from wirecraft.cli import COMMANDS, main
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "wirecraft.cli", *args], capture_output=True, text=True, timeout=300
+    )
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_every_subcommand_has_help(name):
+    result = run_cli(name, "--help")
+    assert result.returncode == 0 and "usage: wirecraft" in result.stdout
+
+
+def test_required_subcommands_exist():
+    assert {"demo", "list", "view", "export-stl"} <= set(COMMANDS)
+
+
+def test_list_json_names_every_registered_asset(tmp_path, capsys):
+    path = tmp_path / "list.json"
+    assert main(["list", "--json", str(path)]) == 0
+    listing = json.loads(path.read_text())
+    assert set(listing["connectors"]) == set(CONNECTORS.names())
+    assert listing["wire_models"] == WIRE_MODELS.names()
+    assert "displayport_port" in listing["parts"]
+    assert "ethernet" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("scene", ["wires", "connectors", "fixtures"])
+def test_headless_view_renders_the_scene(scene, tmp_path):
+    out = tmp_path / f"{scene}.png"
+    assert (
+        main(
+            [
+                "view",
+                "--scene",
+                scene,
+                "--headless",
+                "--out",
+                str(out),
+                "--settle",
+                "0.1",
+                "--width",
+                "320",
+                "--height",
+                "240",
+            ]
+        )
+        == 0
+    )
+    image = np.asarray(Image.open(out))
+    assert image.shape == (240, 320, 3)
+    assert image.std() > 10  # a scene, not a blank frame
+
+
+def test_view_unknown_scene_is_a_clear_error(capsys):
+    assert main(["view", "--scene", "garage", "--headless"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown scene 'garage'" in err and "wires" in err
+
+
+def test_export_stl_bad_input_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "x.stl"
+    assert main(["export-stl", "--part", "hdmi_port", "--out", str(out)]) == 2
+    assert "valid:" in capsys.readouterr().err
+    assert (
+        main(["export-stl", "--part", "cuboid_port", "--clearance", "-0.001", "--out", str(out)])
+        == 2
+    )
+    assert "clearance" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_export_stl_all_parts(tmp_path):
+    assert main(["export-stl", "--all", "--out", str(tmp_path)]) == 0
+    assert len(list(tmp_path.glob("*.stl"))) >= 2 * len(CONNECTORS) + 4
+
+
+def test_demo_writes_strip_and_summary(tmp_path):
+    assert main(["demo", "--out", str(tmp_path), "--seconds", "0.4"]) == 0
+    rows = json.loads((tmp_path / "summary.json").read_text())["rows"]
+    assert [r["wire"] for r in rows] == WIRE_MODELS.names()
+    assert not any(r["diverged"] for r in rows)
+    strip = np.asarray(Image.open(tmp_path / "wires.png"))
+    assert strip.shape[0] == 240 * len(rows) and strip.std() > 10
+
+
+def test_demo_rejects_non_positive_duration(capsys):
+    assert main(["demo", "--seconds", "0"]) == 2
+    assert "--seconds" in capsys.readouterr().err
