@@ -17,6 +17,7 @@ TABLE_HALF = (0.6, 0.8, 0.02)  # m: a 1.2 x 1.6 m top, 4 cm thick, its top face 
 def new_spec(name: str = "wirecraft", *, timestep: float = physics.TIMESTEP) -> mujoco.MjSpec:
     spec = mujoco.MjSpec()
     spec.modelname = name
+    spec.compiler.degree = False  # SI throughout: MjSpec would otherwise read angles in degrees
     physics.configure_options(spec, timestep=timestep)
     spec.visual.global_.offwidth = 1280
     spec.visual.global_.offheight = 960
