@@ -1,0 +1,90 @@
+"""Discrete elastic rod: a MuJoCo ``flexcomp dim="1"`` with bending and twist elasticity.
+
+The flex lives at world level (no pins): each vertex is a point mass with three slide joints,
+each edge a capsule of the wire's radius, edge lengths are held by a flex equality, and the
+``elasticity`` element gives bending (from E I) and twist (from G J).  Ends are attached with two
+``connect`` equalities (the end vertex and its neighbour), which clamps position and tangent;
+the wire's roll about its own axis at an attached end stays free.  This is ~5x faster than
+pinning the rod inside a jointed body (docs/physics.md).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from wirecraft.assets.wires.base import (
+    ATTACH_SOLIMP,
+    ATTACH_SOLREF,
+    FLEX,
+    WIRE_MODELS,
+    WireHandle,
+)
+
+
+@WIRE_MODELS.register("rod")
+class RodWire(WireHandle):
+    model = "rod"
+    DEFAULTS = {
+        "radius": 0.003,
+        "segments": 40,
+        "density": 800.0,
+        "young": 5e7,
+        "poisson": 0.49,
+        # s, stiffness-proportional damping; NOTES: >= 0.01 exploded at 2 ms with an
+        # attached yawed free body, <= 0.003 was stable
+        "damping": 0.002,
+        "friction": 1.0,
+        "rgba": (0.15, 0.35, 0.8, 1.0),
+    }
+
+    @property
+    def num_points(self) -> int:
+        return self.config.segments + 1
+
+    def body_name(self, vertex: int) -> str:
+        return f"{self.flex_name}_{vertex}"
+
+    def _build(self, spec: mujoco.MjSpec) -> None:
+        c = self.config
+        n = c.segments + 1
+        seg = c.segment_length
+        rgba = " ".join(f"{v:g}" for v in c.rgba)
+        # stiff edge-length equality: the default (solref 0.02) let the rod stretch 17% under
+        # its own weight, since soft constraints yield in proportion to the vertex mass
+        ref = " ".join(f"{v:g}" for v in ATTACH_SOLREF)
+        imp = " ".join(f"{v:g}" for v in ATTACH_SOLIMP)
+        xml = (
+            f'<flexcomp name="{FLEX}" type="grid" dim="1" count="{n} 1 1" '
+            f'spacing="{seg:.9g} {seg:.9g} {seg:.9g}" radius="{c.radius:g}" '
+            f'mass="{c.mass * n / (n - 1):.9g}" POSE rgba="{rgba}">'
+            f'<edge equality="true" solref="{ref}" solimp="{imp}"/>'
+            f'<elasticity young="{c.young:g}" shear="{c.shear_modulus:g}" '
+            f'damping="{c.damping:g}"/>'
+            f"{self._contact_xml('none')}"
+            "</flexcomp>"
+        )
+        # flexcomp gives every vertex mass/n; n/(n-1) makes the interior vertices carry one edge
+        # of wire each, so the distributed weight per length is density * area.
+        self._add_flexcomp(spec, xml)
+
+    def _end_vertices(self, end: str) -> list[int]:
+        last = self.config.segments
+        return [0, 1] if end == "start" else [last, last - 1]
+
+    def _attach(self, spec: mujoco.MjSpec, end: str, body_name: str) -> None:
+        seg = self.config.segment_length
+        anchors = [
+            (self.body_name(v), np.array([v * seg, 0.0, 0.0])) for v in self._end_vertices(end)
+        ]
+        self._connect_sites(spec, body_name, end, anchors)
+
+    def _resolve(self, model: mujoco.MjModel) -> object:
+        flex = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, self.flex_name)
+        if flex < 0:
+            raise ValueError(f"no flex named {self.flex_name!r} in the model")
+        adr = model.flex_vertadr[flex]
+        return np.arange(adr, adr + model.flex_vertnum[flex])
+
+    def _points(self, model: mujoco.MjModel, data: mujoco.MjData, ids: object) -> np.ndarray:
+        return data.flexvert_xpos[ids].copy()

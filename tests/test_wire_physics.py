@@ -1,0 +1,251 @@
+"""Wire physics against independent truth, for every registered wire model.
+
+References: Euler-Bernoulli cantilever (small deflection), the three models against each other
+(hanging sag), the support surface (non-penetration), and plain sanity (finite, settled).
+Experiments are documented in docs/physics.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+import pytest
+
+from wirecraft import physics, scene
+from wirecraft.assets.wires import WIRE_MODELS, WireConfig, WireHandle, add_wire
+
+MODELS = WIRE_MODELS.names()
+G = 9.81
+CLAMP_Z = 0.5  # m, height of cantilever clamps (far above anything)
+
+# Tolerance of the cantilever tip against Euler-Bernoulli, per model.
+BENDING_TOL = {"articulated": 0.15, "rod": 0.15, "fem": 0.25}
+
+
+def clamped_wire(config: WireConfig, gravity_scale: float) -> tuple:
+    """A wire clamped horizontally at its start (attached to a fixed world body)."""
+    spec = scene.new_spec()
+    spec.option.gravity = (0.0, 0.0, -G * gravity_scale)
+    wire = add_wire(spec, config, name="wire", pos=(0.0, 0.0, CLAMP_Z))
+    pos, quat = wire.end_pose("start")
+    spec.worldbody.add_body(name="clamp", pos=pos.tolist(), quat=quat.tolist())
+    wire.attach(spec, "start", "clamp")
+    model = scene.compile_spec(spec)
+    return model, mujoco.MjData(model), wire
+
+
+def mean_tip_drop(model, data, wire: WireHandle, seconds: float, average_last: float) -> float:
+    """Run, then average the tip's drop below the clamp over the last ``average_last`` s.
+
+    Averaging over whole swings makes the result the static deflection even for lightly damped
+    models.
+    """
+    steps = int(seconds / model.opt.timestep)
+    start = steps - int(average_last / model.opt.timestep)
+    drops = []
+    for i in range(steps):
+        mujoco.mj_step(model, data)
+        if i >= start:
+            drops.append(CLAMP_Z - wire.points(model, data)[-1, 2])
+    assert np.all(np.isfinite(data.qpos))
+    return float(np.mean(drops))
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_cantilever_matches_euler_bernoulli(name):
+    """Tip deflection under 1% gravity: delta = q L^4 / (8 E I), E and I from the config."""
+    scale = 0.01
+    model, data, wire = clamped_wire(WireConfig(model=name), scale)
+    c = wire.config
+    q = c.linear_density * G * scale
+    theory = q * c.length**4 / (8.0 * c.bending_stiffness)
+    tip = mean_tip_drop(model, data, wire, seconds=8.0, average_last=4.0)
+    assert tip == pytest.approx(theory, rel=BENDING_TOL[name]), (tip, theory)
+
+
+def test_cantilever_catches_a_wrong_stiffness():
+    """The bending check can fail: a rod whose E is 2x off misses theory computed with E."""
+    model, data, wire = clamped_wire(WireConfig(model="rod", young=1e8), 0.01)
+    tip = mean_tip_drop(model, data, wire, seconds=8.0, average_last=4.0)
+    c = WireConfig(model="rod").resolved()  # theory with the default E = 5e7
+    theory = c.linear_density * G * 0.01 * c.length**4 / (8.0 * c.bending_stiffness)
+    assert tip != pytest.approx(theory, rel=BENDING_TOL["rod"])
+
+
+def test_hanging_sag_agrees_across_default_models():
+    """Default wires clamped horizontally at one end under full gravity: tip drops within +-20%
+    of their mean (large deflection: the elastica for these settings gives 184 mm)."""
+    sags = {}
+    for name in MODELS:
+        model, data, wire = clamped_wire(WireConfig(model=name), 1.0)
+        sags[name] = mean_tip_drop(model, data, wire, seconds=8.0, average_last=3.0)
+    mean = np.mean(list(sags.values()))
+    for sag in sags.values():
+        assert abs(sag - mean) <= 0.2 * mean, sags
+    assert 0.12 < mean < 0.25, sags
+
+
+# -- non-penetration --------------------------------------------------------------------------
+
+
+def _wire_contacts(model, data, wire: WireHandle, geom_ids: set[int]) -> list[float]:
+    """Distances (m, negative = penetration) of contacts between the wire and given geoms."""
+    flex_id = (
+        mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, wire.flex_name)
+        if wire.model != "articulated"
+        else -1
+    )
+    wire_bodies = {b for b in range(model.nbody) if model.body(b).name.startswith(f"{wire.name}")}
+    out = []
+    for c in data.contact[: data.ncon]:
+        g1, g2 = int(c.geom[0]), int(c.geom[1])
+        f1, f2 = int(c.flex[0]), int(c.flex[1])
+        other = None
+        if flex_id >= 0 and flex_id in (f1, f2):
+            other = g1 if g1 >= 0 else g2
+        elif flex_id < 0:
+            for a, b in ((g1, g2), (g2, g1)):
+                if a >= 0 and model.geom_bodyid[a] in wire_bodies:
+                    other = b
+        if other is not None and other in geom_ids:
+            out.append(float(c.dist))
+    return out
+
+
+def support_penetration(
+    name: str,
+    add_support: Callable[[mujoco.MjSpec], list[str]],
+    wire_pos: tuple[float, float, float],
+    *,
+    seconds: float = 2.0,
+    table: bool = True,
+) -> tuple[float, float, object]:
+    """Lay the default ``name`` wire at ``wire_pos`` (running along +x) onto support geoms.
+
+    ``add_support(spec)`` adds the support and returns the names of its geoms (a box here;
+    clip slots and channels later).  Returns (peak penetration over the run, penetration at
+    the end, the final (model, data, wire)), penetrations in metres from contact distances.
+    """
+    spec = scene.new_spec()
+    if table:
+        scene.add_table(spec)
+    names = add_support(spec)
+    wire = add_wire(spec, WireConfig(model=name), name="wire", pos=wire_pos)
+    model = scene.compile_spec(spec)
+    data = mujoco.MjData(model)
+    ids = {mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, n) for n in names}
+    peak = 0.0
+    final = 0.0
+    for _ in range(int(seconds / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+        dists = _wire_contacts(model, data, wire, ids)
+        final = max([0.0] + [-x for x in dists])
+        peak = max(peak, final)
+    assert np.all(np.isfinite(data.qpos))
+    return peak, final, (model, data, wire)
+
+
+BOX_TOP = 0.05
+
+
+def _box_support(spec: mujoco.MjSpec) -> list[str]:
+    geom = spec.worldbody.add_geom(
+        name="support",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=(0.3, 0.05, BOX_TOP / 2),
+        pos=(0.0, 0.0, BOX_TOP / 2),
+    )
+    physics.stiff_contact(geom, friction=physics.TABLE_FRICTION)
+    return ["support"]
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_wire_does_not_sink_into_a_box(name):
+    radius = WireConfig(model=name).resolved().radius
+    # the whole 0.4 m wire lies over the 0.6 m box (x from -0.2 to 0.2)
+    peak, final, (model, data, wire) = support_penetration(
+        name, _box_support, (-0.2, 0.0, BOX_TOP + radius + 0.002)
+    )
+    assert peak < 1e-3 and final < 1e-3, (peak, final)
+    # independent check on the centre line: nothing below the box top by more than 1 mm
+    pts = wire.points(model, data)
+    assert np.min(pts[:, 2]) > BOX_TOP + radius - 1e-3
+    assert np.max(pts[:, 2]) < BOX_TOP + radius + 2e-3  # it did come to rest on the box
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_finger_pressing_the_wire_onto_the_table(name):
+    """A 2 cm box finger pushed down with 10 N onto a wire lying on the table."""
+    radius = WireConfig(model=name).resolved().radius
+    spec = scene.new_spec()
+    scene.add_table(spec)
+    finger = spec.worldbody.add_body(name="finger", pos=(0.0, 0.0, 2 * radius + 0.012))
+    finger.add_joint(name="finger_z", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=(0, 0, 1))
+    geom = finger.add_geom(
+        name="finger", type=mujoco.mjtGeom.mjGEOM_BOX, size=(0.01, 0.01, 0.01), mass=0.05
+    )
+    physics.stiff_contact(geom, friction=physics.PAD_FRICTION)
+    wire = add_wire(spec, WireConfig(model=name), name="wire", pos=(-0.2, 0.0, radius + 0.001))
+    model = scene.compile_spec(spec)
+    data = mujoco.MjData(model)
+    fid = model.body("finger").id
+    table, fgeom = model.geom("table").id, model.geom("finger").id
+    peak = 0.0
+    for i in range(int(1.5 / model.opt.timestep)):
+        if i * model.opt.timestep > 0.3:  # let the wire settle, then push
+            data.xfrc_applied[fid, 2] = -10.0
+        mujoco.mj_step(model, data)
+        dists = _wire_contacts(model, data, wire, {table, fgeom})
+        peak = max([peak] + [-x for x in dists])
+    assert np.all(np.isfinite(data.qpos))
+    # the finger is really pressing: it sits on the wire, about one diameter above the table
+    bottom = data.body("finger").xpos[2] - 0.01
+    assert 2 * radius - 1e-3 < bottom < 2 * radius + 1e-3, bottom
+    assert peak < 1e-3, peak
+
+
+# -- stability ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_free_fall_with_a_plug_settles(name):
+    """10 s: the wire, with a 10 g box attached at its end, falls 10 cm onto the table."""
+    spec = scene.new_spec()
+    scene.add_table(spec)
+    wire = add_wire(
+        spec,
+        WireConfig(model=name),
+        name="wire",
+        pos=(-0.2, 0.0, 0.1),
+        quat=(np.cos(0.2), 0.0, 0.0, np.sin(0.2)),  # yawed: NOTES saw rods explode so
+    )
+    pos, quat = wire.end_pose("end")
+    plug = spec.worldbody.add_body(name="plug", pos=pos.tolist(), quat=quat.tolist())
+    plug.add_freejoint()
+    geom = plug.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=(0.01, 0.006, 0.004),
+        pos=(0.01, 0.0, 0.0),
+        mass=physics.PLUG_MASS,
+    )
+    physics.stiff_contact(geom, friction=physics.PLUG_FRICTION)
+    wire.attach(spec, "end", "plug")
+    model = scene.compile_spec(spec)
+    data = mujoco.MjData(model)
+    dt = model.opt.timestep
+    prev = wire.points(model, data)
+    speeds = []
+    for i in range(int(10.0 / dt)):
+        mujoco.mj_step(model, data)
+        pts = wire.points(model, data)
+        if i * dt >= 9.0:
+            speeds.append(np.max(np.linalg.norm(pts - prev, axis=1)) / dt)
+        prev = pts
+    assert np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))
+    assert max(speeds) < 10.0
+    assert max(speeds) < 0.05, max(speeds)  # settled (expected ~0)
+    assert np.abs(data.body("plug").cvel).max() < 0.1
+    radius = wire.config.radius
+    assert np.all(np.abs(pts[:, 2] - radius) < 2e-3), pts[:, 2]  # lying on the table
