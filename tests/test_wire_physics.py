@@ -14,6 +14,14 @@ import numpy as np
 import pytest
 
 from wirecraft import physics, scene
+from wirecraft.assets.fixtures import (
+    ChannelConfig,
+    ClipConfig,
+    PlacedChannel,
+    PlacedClip,
+    add_channel,
+    add_clip,
+)
 from wirecraft.assets.wires import WIRE_MODELS, WireConfig, WireHandle, add_wire
 
 MODELS = WIRE_MODELS.names()
@@ -249,3 +257,58 @@ def test_free_fall_with_a_plug_settles(name):
     assert np.abs(data.body("plug").cvel).max() < 0.1
     radius = wire.config.radius
     assert np.all(np.abs(pts[:, 2] - radius) < 2e-3), pts[:, 2]  # lying on the table
+
+
+# -- non-penetration in the fixtures ------------------------------------------------------------
+
+
+def _fixture_geoms(spec: mujoco.MjSpec, prefix: str) -> list[str]:
+    return [g.name for g in spec.geoms if g.name.startswith(prefix)]
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_wire_lying_in_a_clip_slot_stays_on_its_floor(name):
+    clip = ClipConfig()
+    radius = WireConfig(model=name).resolved().radius
+
+    def add_support(spec):
+        add_clip(spec, clip, name="clip", pos=(0.0, 0.0, 0.0))
+        return _fixture_geoms(spec, "clip_")
+
+    # Below the lips, across the slot; beyond the clip the wire droops to the table.
+    peak, final, (model, data, wire) = support_penetration(
+        name, add_support, (-0.2, 0.0, clip.base_height + radius + 0.001)
+    )
+    assert peak < 1e-3 and final < 1e-3, (peak, final)
+    pts = wire.points(model, data)
+    in_slot = np.abs(pts[:, 0]) < clip.length / 2
+    assert in_slot.any()
+    assert np.min(pts[in_slot, 2]) > clip.base_height + radius - 1e-3
+    assert PlacedClip(clip, (0.0, 0.0, 0.0), 0.0).contains(pts).any()
+
+
+@pytest.mark.parametrize("variant", ["straight", "curved"])
+@pytest.mark.parametrize("name", MODELS)
+def test_wire_lying_in_a_channel_stays_on_its_floor(name, variant):
+    channel = ChannelConfig() if variant == "straight" else ChannelConfig.curved()
+    radius = WireConfig(model=name).resolved().radius
+    # Straight: the wire lies along the floor.  Curved: a straight wire cannot be laid along
+    # the bends, so it is dropped from just above the walls and comes to rest on walls and
+    # floor, in contact with the channel either way.
+    start = (-0.2, 0.0, 0.0)
+    above = 0.0 if variant == "straight" else channel.wall_height
+
+    def add_support(spec):
+        add_channel(spec, channel, name="channel", pos=start)
+        return _fixture_geoms(spec, "channel_")
+
+    peak, final, (model, data, wire) = support_penetration(
+        name, add_support, (start[0], 0.0, channel.floor + above + radius + 0.001)
+    )
+    assert peak < 1e-3 and final < 1e-3, (peak, final)
+    pts = wire.points(model, data)
+    assert np.min(pts[:, 2]) > channel.floor + radius - 1e-3
+    assert data.ncon > 0
+    if variant == "straight":
+        placed = PlacedChannel(channel, start, 0.0)
+        assert placed.fraction_inside(pts) > 0.95
