@@ -47,7 +47,7 @@ test: install sysdeps
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -n 2 -q
 
 bench: install
-	$(PY) benchmarks/bench_wires.py
+	$(VENV)/bin/wirecraft bench --suite wires
 
 lint: install
 	$(VENV)/bin/ruff check src tests benchmarks

@@ -28,7 +28,7 @@ def test_every_subcommand_has_help(name):
 
 
 def test_required_subcommands_exist():
-    assert {"demo", "list", "view", "export-stl"} <= set(COMMANDS)
+    assert {"bench", "demo", "list", "view", "export-stl"} <= set(COMMANDS)
 
 
 def test_list_json_names_every_registered_asset(tmp_path, capsys):
@@ -103,3 +103,16 @@ def test_demo_writes_strip_and_summary(tmp_path):
 def test_demo_rejects_non_positive_duration(capsys):
     assert main(["demo", "--seconds", "0"]) == 2
     assert "--seconds" in capsys.readouterr().err
+
+
+def test_bench_json_rows(tmp_path):
+    path = tmp_path / "bench.json"
+    assert main(["bench", "--wire", "articulated", "--seconds", "0.05", "--json", str(path)]) == 0
+    (row,) = json.loads(path.read_text())
+    assert row["wire"] == "articulated" and row["physics_steps_per_s"] > 0
+    assert row["realtime_factor"] == pytest.approx(row["physics_steps_per_s"] * 0.002, rel=0.01)
+
+
+def test_bench_unknown_wire_is_a_clear_error(capsys):
+    assert main(["bench", "--wire", "spaghetti", "--seconds", "0.05"]) == 2
+    assert "unknown wire model 'spaghetti'" in capsys.readouterr().err

@@ -135,6 +135,31 @@ def cmd_export_stl(args) -> int:
     return 0
 
 
+# -- bench --------------------------------------------------------------------------------------
+BENCH_SUITES = ("wires",)
+
+
+def _bench_args(p):
+    p.add_argument("--suite", default="wires", help=f"one of: {', '.join(BENCH_SUITES)}")
+    p.add_argument("--seconds", type=float, default=5.0, help="simulated seconds timed per row")
+    p.add_argument("--wire", nargs="*", default=None, help="wire models (default: all)")
+    p.add_argument("--json", metavar="PATH", help="write the rows as JSON")
+
+
+@command("bench", "print throughput figures (physics steps/s, real-time factor)", _bench_args)
+def cmd_bench(args) -> int:
+    if args.suite not in BENCH_SUITES:
+        raise ValueError(f"unknown suite {args.suite!r}; valid: {', '.join(BENCH_SUITES)}")
+    if not args.seconds > 0:
+        raise ValueError(f"--seconds must be > 0, got {args.seconds}")
+    from wirecraft.benchmarks import wires
+
+    rows = wires.run(args.seconds, args.wire)
+    wires.print_table(rows)
+    write_json(args.json, rows)
+    return 0
+
+
 # -- demo ---------------------------------------------------------------------------------------
 def _demo_args(p):
     p.add_argument("--out", default="out/demo", help="folder for the images and summary")
