@@ -1,4 +1,7 @@
-"""WireCraft: a simulation benchmark for wire and cable manipulation on MuJoCo."""
+"""WireCraft: a simulation benchmark for wire and cable manipulation on MuJoCo.
+
+``import wirecraft`` registers the gymnasium ids; ``wirecraft.make(task, **kwargs)`` builds one.
+"""
 
 from __future__ import annotations
 
@@ -9,4 +12,40 @@ import os
 if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
     os.environ["MUJOCO_GL"] = "egl"
 
+import gymnasium as gym  # noqa: E402
+
 __version__ = "0.1.0"
+
+# Task family -> gymnasium id.  The environment modules load only when an env is made.
+TASK_IDS = {
+    "insertion": "WireCraft/ConnectorInsertion-v0",
+    "routing": "WireCraft/ClipRouting-v0",
+    "seating": "WireCraft/ChannelSeating-v0",
+}
+EPISODE_STEPS = 480  # 8 s at 60 Hz
+
+for _task, _id in TASK_IDS.items():
+    if _id not in gym.registry:
+        gym.register(
+            id=_id,
+            entry_point="wirecraft.envs:WireCraftEnv",
+            kwargs={"task": _task},
+            disable_env_checker=True,
+        )
+
+
+def _resolve(task: str) -> str:
+    if task in TASK_IDS:
+        return TASK_IDS[task]
+    if task in TASK_IDS.values():
+        return task
+    valid = ", ".join([*TASK_IDS, *TASK_IDS.values()])
+    raise ValueError(f"unknown task {task!r}; valid: {valid}")
+
+
+def make(task: str, **kwargs) -> gym.Env:
+    """Build a WireCraft environment: ``task`` is insertion, routing, seating or a full id."""
+    return gym.make(_resolve(task), **kwargs)
+
+
+__all__ = ["TASK_IDS", "make"]

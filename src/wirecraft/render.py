@@ -52,6 +52,15 @@ class FastRenderer:
         scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
         return self._renderer.render()
 
+    def render_depth(self, data: mujoco.MjData, camera: mujoco.MjvCamera | str | int = -1):
+        """(H, W) float32 depth in metres from the camera."""
+        self._renderer.enable_depth_rendering()
+        try:
+            self._renderer.update_scene(data, camera=camera)
+            return self._renderer.render().astype(np.float32)
+        finally:
+            self._renderer.disable_depth_rendering()
+
     def close(self) -> None:
         self._renderer.close()
 

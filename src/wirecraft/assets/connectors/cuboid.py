@@ -7,6 +7,7 @@ from wirecraft.assets.connectors.base import CONNECTORS, Connector
 
 @CONNECTORS.register("cuboid")
 class CuboidConnector(Connector):
+    name = "cuboid"
     symmetry = 2
     description = "rectangular peg, 12 x 8 mm"
     shell_length = 0.020

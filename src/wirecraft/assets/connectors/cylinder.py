@@ -13,6 +13,7 @@ RING_SIDES = 24  # the socket bore is a 24-sided polygon whose inscribed circle 
 
 @CONNECTORS.register("cylinder")
 class CylinderConnector(Connector):
+    name = "cylinder"
     symmetry = 0  # continuous
     description = "round peg, 10 mm diameter"
     shell_length = 0.020

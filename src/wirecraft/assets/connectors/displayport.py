@@ -16,6 +16,7 @@ from wirecraft.assets.shapes import Box, Prism, Shape
 
 @CONNECTORS.register("displayport")
 class DisplayPortConnector(Connector):
+    name = "displayport"
     symmetry = 1
     description = "DisplayPort-like shell, 16 x 4.8 mm, chamfered corner (most alignment-sensitive)"
     shell_length = 0.015

@@ -12,6 +12,7 @@ from wirecraft.assets.connectors.base import CONNECTORS, KEY_MARGIN, Connector
 
 @CONNECTORS.register("ethernet")
 class EthernetConnector(Connector):
+    name = "ethernet"
     symmetry = 1
     description = "RJ45-like, 11.7 x 6 mm body with a latch tab on top (about 8 mm high)"
     shell_length = 0.018

@@ -11,6 +11,7 @@ from wirecraft.assets.connectors.base import CONNECTORS, Connector
 
 @CONNECTORS.register("usb_a")
 class UsbAConnector(Connector):
+    name = "usb_a"
     symmetry = 2
     description = "USB-A-like shell, 12 x 4.5 mm"
     shell_length = 0.014

@@ -1,0 +1,144 @@
+"""The cable every task starts from: a wire with a plug on its end and a clamp on its start.
+
+The clamp is a 0.2 kg block that rests on the table: the cable's far end is dynamic, as on a
+real harness board, and drifts when the wire is pulled hard.  At each reset the whole assembly
+is laid out straight behind a sampled plug pose (``place``), then the task lets it fall and
+settle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from wirecraft import physics
+from wirecraft.assets.connectors import Connector, add_plug
+from wirecraft.assets.shapes import Box, add_to_body
+from wirecraft.assets.wires import WireConfig, WireHandle, add_wire
+from wirecraft.sensors import quat_to_mat
+
+CLAMP_HALF = (0.02, 0.015, 0.012)  # m
+CLAMP_MASS = 0.2  # kg
+CLAMP_RGBA = (0.35, 0.35, 0.38, 1.0)
+
+
+@dataclass
+class WireAssembly:
+    wire: WireHandle
+    connector: Connector
+    plug: str = "plug"
+    clamp: str = "clamp"
+
+    @classmethod
+    def build(cls, spec: mujoco.MjSpec, wire_config: WireConfig, connector: Connector):
+        wire = add_wire(spec, wire_config, name="wire", pos=(0.0, 0.0, 0.05))
+        pos, quat = wire.end_pose("end")
+        add_plug(spec, connector, name="plug", pos=tuple(pos), quat=tuple(quat))
+        wire.attach(spec, "end", "plug")
+        pos, quat = wire.end_pose("start")
+        clamp = spec.worldbody.add_body(name="clamp", pos=tuple(pos), quat=tuple(quat))
+        clamp.add_freejoint(name="clamp_free")
+        # The clamp's origin holds the wire start; its block sits behind it (+x, away from wire).
+        block = Box(CLAMP_HALF, (CLAMP_HALF[0], 0.0, 0.0))
+        volume = 8 * np.prod(CLAMP_HALF)
+        add_to_body(
+            spec,
+            clamp,
+            [block],
+            "clamp",
+            rgba=CLAMP_RGBA,
+            friction=physics.TABLE_FRICTION,
+            density=CLAMP_MASS / volume,
+        )
+        wire.attach(spec, "start", "clamp")
+        return cls(wire=wire, connector=connector)
+
+    def bind(self, model: mujoco.MjModel) -> None:
+        self.plug_id = model.body(self.plug).id
+        self.plug_qpos = model.joint("plug_free").qposadr[0]
+        self.plug_dof = model.joint("plug_free").dofadr[0]
+        self.clamp_qpos = model.joint("clamp_free").qposadr[0]
+        self.clamp_dof = model.joint("clamp_free").dofadr[0]
+        self.tip_site = model.site("plug_tip").id
+        self.grasp_site = model.site("plug_grasp").id
+        self.plug_geoms = np.array(
+            [g for g in range(model.ngeom) if model.geom_bodyid[g] == self.plug_id], dtype=int
+        )
+        self.end_equalities = np.array(
+            [e for e in range(model.neq) if model.equality(e).name.startswith("wire_end")],
+            dtype=int,
+        )
+
+    def place(self, model, data, plug_pos, direction, roll: float) -> None:
+        """Lay the wire straight along ``direction`` (unit, the plug's insertion axis) ending at
+        ``plug_pos``, rolled by ``roll`` about it; put the plug and clamp on its ends; zero
+        their velocities."""
+        direction = np.asarray(direction, float) / np.linalg.norm(direction)
+        length = self.wire.config.length
+        start = np.asarray(plug_pos, float) - length * direction
+        points = np.linspace(start, plug_pos, 9)
+        ends = self.wire.set_centerline(model, data, points, roll=roll)
+        for body_qpos, body_dof, end in (
+            (self.plug_qpos, self.plug_dof, "end"),
+            (self.clamp_qpos, self.clamp_dof, "start"),
+        ):
+            pos, quat = ends[end]
+            data.qpos[body_qpos : body_qpos + 3] = pos
+            data.qpos[body_qpos + 3 : body_qpos + 7] = quat
+            data.qvel[body_dof : body_dof + 6] = 0.0
+        mujoco.mj_forward(model, data)
+
+    def lowest_point(self, model, data) -> float:
+        """Lowest height (m) of the wire surface, the plug and the clamp (after mj_forward)."""
+        radius = self.wire.config.radius
+        lowest = float(self.wire.points(model, data)[:, 2].min()) - radius
+        for body in (self.plug, self.clamp):
+            bid = model.body(body).id
+            for g in range(model.ngeom):
+                if model.geom_bodyid[g] == bid:
+                    lowest = min(lowest, float(data.geom_xpos[g, 2] - model.geom_rbound[g]))
+        return lowest
+
+    def plug_pose(self, data) -> tuple[np.ndarray, np.ndarray]:
+        """Plug position (3,) and rotation matrix (3, 3) in the world."""
+        return data.xpos[self.plug_id].copy(), data.xmat[self.plug_id].reshape(3, 3).copy()
+
+    def tension(self, data) -> float:
+        """Force (N) the wire's end attachment carries: the cable pull on the plug."""
+        force = np.zeros(3)
+        for eq in self.end_equalities:
+            rows = np.flatnonzero(
+                (data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY) & (data.efc_id == eq)
+            )
+            force += data.efc_force[rows[:3]] if len(rows) >= 3 else 0.0
+        return float(np.linalg.norm(force))
+
+    def min_bend_radius(self, model, data) -> float:
+        """Smallest radius of curvature (m) along the wire's centre line (inf when straight)."""
+        pts = self.wire.points(model, data)
+        seg = np.diff(pts, axis=0)
+        lengths = np.linalg.norm(seg, axis=1)
+        unit = seg / lengths[:, None]
+        cos = np.clip(np.einsum("ij,ij->i", unit[:-1], unit[1:]), -1.0, 1.0)
+        turn = np.arccos(cos)
+        mean_len = (lengths[:-1] + lengths[1:]) / 2
+        curvature = turn / mean_len
+        peak = float(curvature.max()) if len(curvature) else 0.0
+        return float("inf") if peak < 1e-9 else 1.0 / peak
+
+
+def rotation_from_axis(axis: np.ndarray, roll: float) -> np.ndarray:
+    """Rotation whose x column is ``axis``, whose y column is horizontal, rolled by ``roll``."""
+    x = np.asarray(axis, float) / np.linalg.norm(axis)
+    y = np.cross([0.0, 0.0, 1.0], x)
+    if np.linalg.norm(y) < 1e-9:
+        y = np.array([0.0, 1.0, 0.0])
+    y /= np.linalg.norm(y)
+    z = np.cross(x, y)
+    c, s = np.cos(roll), np.sin(roll)
+    return np.column_stack([x, c * y + s * z, -s * y + c * z])
+
+
+__all__ = ["WireAssembly", "quat_to_mat", "rotation_from_axis"]
