@@ -8,53 +8,71 @@ in newtons, summed over the contacts between two sets of geoms.  Images come fro
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 
-def geom_ids(model: mujoco.MjModel, names: Iterable[str]) -> np.ndarray:
-    return np.array([model.geom(n).id for n in names], dtype=int)
+@dataclass(frozen=True)
+class Contacts:
+    """A set of collision elements: geoms (by id) and flexes (by id, for rod and FEM wires)."""
+
+    geoms: frozenset[int] = frozenset()
+    flexes: frozenset[int] = frozenset()
+
+    def __or__(self, other: Contacts) -> Contacts:
+        return Contacts(self.geoms | other.geoms, self.flexes | other.flexes)
+
+    def mask(self, data: mujoco.MjData, side: int) -> np.ndarray:
+        """(ncon,) which contacts have this set on ``side`` (0 or 1)."""
+        n = data.ncon
+        geom = data.contact.geom[:n, side]
+        flex = data.contact.flex[:n, side]
+        return np.isin(geom, list(self.geoms)) | ((flex >= 0) & np.isin(flex, list(self.flexes)))
 
 
-def body_geom_ids(model: mujoco.MjModel, body_names: Iterable[str]) -> np.ndarray:
+EVERYTHING = None  # as the second set: contacts with anything
+
+
+def geom_ids(model: mujoco.MjModel, names: Iterable[str]) -> Contacts:
+    return Contacts(geoms=frozenset(model.geom(n).id for n in names))
+
+
+def body_geom_ids(model: mujoco.MjModel, body_names: Iterable[str]) -> Contacts:
     bodies = {model.body(n).id for n in body_names}
-    return np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies], dtype=int)
+    geoms = frozenset(g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies)
+    return Contacts(geoms=geoms)
 
 
-def contact_normal_force(
-    model: mujoco.MjModel, data: mujoco.MjData, geoms_a: np.ndarray, geoms_b: np.ndarray | None
-) -> float:
-    """Sum of contact normal forces (N) between a geom of ``geoms_a`` and one of ``geoms_b``
-    (``None``: any other geom)."""
-    total = 0.0
+def flex_ids(model: mujoco.MjModel, names: Iterable[str]) -> Contacts:
+    return Contacts(
+        flexes=frozenset(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, n) for n in names)
+    )
+
+
+def _between(data: mujoco.MjData, a: Contacts, b: Contacts | None) -> np.ndarray:
+    """Indices of contacts between set ``a`` and set ``b`` (None: anything)."""
+    if b is None:
+        hit = a.mask(data, 0) | a.mask(data, 1)
+    else:
+        hit = (a.mask(data, 0) & b.mask(data, 1)) | (a.mask(data, 1) & b.mask(data, 0))
+    return np.flatnonzero(hit)
+
+
+def contact_normal_force(model, data, a: Contacts, b: Contacts | None) -> float:
+    """Sum of contact normal forces (N) between set ``a`` and set ``b`` (None: anything)."""
     wrench = np.zeros(6)
-    set_a = set(int(g) for g in geoms_a)
-    set_b = None if geoms_b is None else set(int(g) for g in geoms_b)
-    for i in range(data.ncon):
-        g1, g2 = int(data.contact.geom1[i]), int(data.contact.geom2[i])
-        if g1 in set_a:
-            other = g2
-        elif g2 in set_a:
-            other = g1
-        else:
-            continue
-        if set_b is not None and other not in set_b:
-            continue
-        mujoco.mj_contactForce(model, data, i, wrench)
+    total = 0.0
+    for i in _between(data, a, b):
+        mujoco.mj_contactForce(model, data, int(i), wrench)
         total += abs(wrench[0])
     return total
 
 
-def touching(model, data, geoms_a: np.ndarray, geoms_b: np.ndarray | None) -> bool:
-    set_a = set(int(g) for g in geoms_a)
-    set_b = None if geoms_b is None else set(int(g) for g in geoms_b)
-    for i in range(data.ncon):
-        g1, g2 = int(data.contact.geom1[i]), int(data.contact.geom2[i])
-        for a, b in ((g1, g2), (g2, g1)):
-            if a in set_a and (set_b is None or b in set_b):
-                return True
-    return False
+def touching(model, data, a: Contacts, b: Contacts | None) -> bool:
+    del model
+    return bool(_between(data, a, b).size)
 
 
 def quat_to_mat(quat: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ from wirecraft import physics
 from wirecraft.assets.connectors import Connector, add_plug
 from wirecraft.assets.shapes import Box, add_to_body
 from wirecraft.assets.wires import WireConfig, WireHandle, add_wire
-from wirecraft.sensors import quat_to_mat
+from wirecraft.sensors import Contacts, body_geom_ids, flex_ids, quat_to_mat
 
 CLAMP_HALF = (0.02, 0.015, 0.012)  # m
 CLAMP_MASS = 0.2  # kg
@@ -63,12 +63,24 @@ class WireAssembly:
         self.clamp_dof = model.joint("clamp_free").dofadr[0]
         self.tip_site = model.site("plug_tip").id
         self.grasp_site = model.site("plug_grasp").id
-        self.plug_geoms = np.array(
-            [g for g in range(model.ngeom) if model.geom_bodyid[g] == self.plug_id], dtype=int
-        )
+        self.plug_contacts = body_geom_ids(model, [self.plug])
+        self.wire_contacts = self._wire_contacts(model)
         self.end_equalities = np.array(
             [e for e in range(model.neq) if model.equality(e).name.startswith("wire_end")],
             dtype=int,
+        )
+
+    def _wire_contacts(self, model) -> Contacts:
+        """The wire's collision elements: its capsules, or its flex."""
+        if getattr(self.wire, "flex_name", None) and model.nflex:
+            return flex_ids(model, [self.wire.flex_name])
+        prefix = f"{self.wire.name}_"
+        return Contacts(
+            geoms=frozenset(
+                g
+                for g in range(model.ngeom)
+                if model.body(model.geom_bodyid[g]).name.startswith(prefix)
+            )
         )
 
     def place(self, model, data, plug_pos, direction, roll: float) -> None:

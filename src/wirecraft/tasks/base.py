@@ -27,7 +27,7 @@ import numpy as np
 from wirecraft.assets.robots import RobotHandle
 from wirecraft.assets.wires import WireConfig
 from wirecraft.registry import Registry
-from wirecraft.sensors import body_geom_ids, contact_normal_force, geom_ids, touching
+from wirecraft.sensors import Contacts, body_geom_ids, contact_normal_force, geom_ids, touching
 
 TASKS: Registry[type[Task]] = Registry("task")
 
@@ -63,7 +63,7 @@ class Task(ABC):
         index = robot.index(model)
         self.base_site = index.base_site
         self.tcp_site = index.tcp_site
-        self.pad_geoms = [geom_ids(model, [name]) for name in robot.pad_geom_names]
+        self.pads = [geom_ids(model, [name]) for name in robot.pad_geom_names]
         # Everything of the robot that moves (the base stands on the table by design).
         base = model.body(robot.base_site).id
         fixed = {base, model.body(f"{robot.prefix}chain_base").id}
@@ -111,16 +111,15 @@ class Task(ABC):
     def rot_to_base(self, data, rot: np.ndarray) -> np.ndarray:
         return data.site_xmat[self.base_site].reshape(3, 3).T @ rot
 
-    def pad_contacts(self, model, data, target_geoms) -> tuple[bool, bool]:
-        return tuple(touching(model, data, pads, target_geoms) for pads in self.pad_geoms)
+    def pad_contacts(self, model, data, target: Contacts) -> tuple[bool, bool]:
+        return tuple(touching(model, data, pads, target) for pads in self.pads)
 
-    def grasp_force(self, model, data, target_geoms) -> float:
-        return sum(contact_normal_force(model, data, pads, target_geoms) for pads in self.pad_geoms)
+    def grasp_force(self, model, data, target: Contacts) -> float:
+        return sum(contact_normal_force(model, data, pads, target) for pads in self.pads)
 
     def gripper_collision(self, model, data) -> bool:
-        """Robot arm or gripper (not the pads' intended targets) touching the table."""
-        pads = np.concatenate(self.pad_geoms)
-        return touching(model, data, np.concatenate([self.robot_geoms, pads]), self.table_geom)
+        """Any moving part of the robot, pads included, touching the table."""
+        return touching(model, data, self.robot_geoms, self.table_geom)
 
 
 def shaped(distance: float, scale: float) -> float:

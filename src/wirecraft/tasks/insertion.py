@@ -35,7 +35,7 @@ from wirecraft import physics
 from wirecraft.assets.connectors import CONNECTORS, add_port, make_connector
 from wirecraft.assets.fixtures import PortStandConfig
 from wirecraft.assets.shapes import add_to_body, quat_about
-from wirecraft.sensors import contact_normal_force, mat_to_quat
+from wirecraft.sensors import body_geom_ids, contact_normal_force, mat_to_quat
 from wirecraft.tasks.assembly import WireAssembly
 from wirecraft.tasks.base import TASKS, Task, shaped
 
@@ -115,14 +115,7 @@ class InsertionTask(Task):
         self.port_id = model.body("port").id
         self.entry_site = model.site("port_entry").id
         self.seated_site = model.site("port_seated").id
-        self.port_geoms = np.array(
-            [
-                g
-                for g in range(model.ngeom)
-                if model.geom_bodyid[g] in (self.port_id, model.body("port_mount").id)
-            ],
-            dtype=int,
-        )
+        self.port_contacts = body_geom_ids(model, ["port", "port_mount"])
 
     # -- episode ----------------------------------------------------------------------------
     def initialize_episode(self, model, data, rng) -> None:
@@ -179,7 +172,7 @@ class InsertionTask(Task):
         }
 
     def held(self, model, data) -> bool:
-        return all(self.pad_contacts(model, data, self.assembly.plug_geoms))
+        return all(self.pad_contacts(model, data, self.assembly.plug_contacts))
 
     # -- observation ------------------------------------------------------------------------
     def privileged_state(self, model, data) -> np.ndarray:
@@ -204,7 +197,7 @@ class InsertionTask(Task):
                 [robot.gripper_velocity(model, data)],
                 tcp,
                 tcp_quat,
-                np.array(self.pad_contacts(model, data, self.assembly.plug_geoms), dtype=float),
+                np.array(self.pad_contacts(model, data, self.assembly.plug_contacts), dtype=float),
                 (seated - tip) @ data.site_xmat[self.base_site].reshape(3, 3),
                 self.to_base(data, plug_pos),
                 mat_to_quat(self.rot_to_base(data, plug_rot)),
@@ -271,9 +264,9 @@ class InsertionTask(Task):
             "yaw_error": err["axis_error"],
             "roll_error": err["roll_error"],
             "insertion_force": contact_normal_force(
-                model, data, self.assembly.plug_geoms, self.port_geoms
+                model, data, self.assembly.plug_contacts, self.port_contacts
             ),
-            "grasp_force": self.grasp_force(model, data, self.assembly.plug_geoms),
+            "grasp_force": self.grasp_force(model, data, self.assembly.plug_contacts),
         }
 
     def get_state(self) -> dict:
