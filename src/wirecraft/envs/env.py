@@ -72,6 +72,7 @@ class WireCraftEnv(gym.Env):
         self.task.build_scene(spec, wire_config or WireConfig(model=wire))
         self.model = compile_spec(spec)
         self.data = mujoco.MjData(self.model)
+        self.robot.reset_home(self.model, self.data)  # a valid state before the first reset
         self.task.bind(self.model, self.robot)
         self.controller = make_controller(
             control, self.robot, self.model, ControlConfig(substeps=SUBSTEPS)

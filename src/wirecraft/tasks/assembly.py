@@ -20,6 +20,7 @@ from wirecraft.assets.wires import WireConfig, WireHandle, add_wire
 from wirecraft.sensors import Contacts, body_geom_ids, flex_ids, quat_to_mat
 
 CLAMP_HALF = (0.02, 0.015, 0.012)  # m
+CLAMP_EXIT_DROP = -0.008  # m: block centre below the wire's start
 CLAMP_MASS = 0.2  # kg
 CLAMP_RGBA = (0.35, 0.35, 0.38, 1.0)
 
@@ -40,8 +41,9 @@ class WireAssembly:
         pos, quat = wire.end_pose("start")
         clamp = spec.worldbody.add_body(name="clamp", pos=tuple(pos), quat=tuple(quat))
         clamp.add_freejoint(name="clamp_free")
-        # The clamp's origin holds the wire start; its block sits behind it (+x, away from wire).
-        block = Box(CLAMP_HALF, (CLAMP_HALF[0], 0.0, 0.0))
+        # The clamp's origin holds the wire start near the top of its block, which sits behind
+        # it (+x, away from the wire): the cable leaves above low fixtures such as channels.
+        block = Box(CLAMP_HALF, (CLAMP_HALF[0], 0.0, CLAMP_EXIT_DROP))
         volume = 8 * np.prod(CLAMP_HALF)
         add_to_body(
             spec,
@@ -117,14 +119,22 @@ class WireAssembly:
         """Plug position (3,) and rotation matrix (3, 3) in the world."""
         return data.xpos[self.plug_id].copy(), data.xmat[self.plug_id].reshape(3, 3).copy()
 
-    def tension(self, data) -> float:
-        """Force (N) the wire's end attachment carries: the cable pull on the plug."""
+    def tension(self, model, data) -> float:
+        """Peak pull (N) along the wire.
+
+        Rod: the largest force of the flex's edge-length constraints, leaving out the two end
+        edges (their load is shared arbitrarily with the end attachments, which constrain the
+        same lengths).  Capsule chain and FEM: the net force of the plug-end attachment.
+        """
+        rows = np.flatnonzero(data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY)
+        ids = data.efc_id[rows]
+        edges = rows[model.eq_type[ids] == mujoco.mjtEq.mjEQ_FLEX]
+        if len(edges) > 2:
+            return float(np.abs(data.efc_force[edges[1:-1]]).max())
         force = np.zeros(3)
         for eq in self.end_equalities:
-            rows = np.flatnonzero(
-                (data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY) & (data.efc_id == eq)
-            )
-            force += data.efc_force[rows[:3]] if len(rows) >= 3 else 0.0
+            eq_rows = rows[ids == eq]
+            force += data.efc_force[eq_rows[:3]]
         return float(np.linalg.norm(force))
 
     def min_bend_radius(self, model, data) -> float:
@@ -139,6 +149,14 @@ class WireAssembly:
         curvature = turn / mean_len
         peak = float(curvature.max()) if len(curvature) else 0.0
         return float("inf") if peak < 1e-9 else 1.0 / peak
+
+
+def resample(polyline: np.ndarray, spacing: float) -> np.ndarray:
+    """Points every ``spacing`` metres along a polyline (both ends kept)."""
+    polyline = np.asarray(polyline, float)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(polyline, axis=0), axis=1))])
+    s = np.linspace(0.0, arc[-1], max(2, int(np.ceil(arc[-1] / spacing)) + 1))
+    return np.column_stack([np.interp(s, arc, polyline[:, k]) for k in range(3)])
 
 
 def rotation_from_axis(axis: np.ndarray, roll: float) -> np.ndarray:

@@ -1,0 +1,206 @@
+"""Clip routing: press the cable into every U-slot clip along a lane.
+
+Task description
+    A cable (clamp block on its start, plug on its end) lies on the table beside a lane of
+    1-3 U-slot clips.  The plug is wider than the clip mouth, so the robot grasps the wire
+    itself, lifts it over each clip in turn and pushes it down past the compliant lip.
+
+Randomizations (each reset, from the reset seed)
+    Clips: fixed along the lane (world +y); each clip +/-6 cm across the lane, yaw +/-15 deg.
+    Cable: clamp block on the table at the lane's start; the wire leaves it at 25-40 deg off
+    the lane towards the robot, its plug end at 6-11 cm height, rolled +/-18 deg; the
+    assembly then falls and settles for 1 s.  (The connector's own offset and yaw ranges of
+    the insertion task are not applied: they would drop the cable onto the clips.)
+
+Success conditions
+    success: for every clip, some point of the wire's centre line (sampled every 2 mm) lies
+    inside its slot, below the lips.
+
+Privileged state (80-d for a 6-joint arm; positions in the robot base frame)
+    proprioception (2 dof + 2), TCP position (3) and quaternion (4), left/right pad touching the
+    wire (2); for 3 clip places: present flag, slot centre (3), cos and sin of the slot's yaw
+    in the base frame (2), wire seated in it (1) (7 each, zeros where no clip); 10 points along
+    the wire (30); clamp position (3); plug position (3).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from wirecraft.assets.connectors import make_connector
+from wirecraft.assets.fixtures import ClipConfig, PlacedClip, add_clip
+from wirecraft.sensors import body_geom_ids, mat_to_quat
+from wirecraft.tasks.assembly import WireAssembly, resample
+from wirecraft.tasks.base import TASKS, Task, shaped
+
+LANE_X = 0.10  # m
+LANE_JITTER = 0.06  # m across the lane
+CLIP_YAW_JITTER = math.radians(15.0)
+CLIP_Y = {1: (0.0,), 2: (-0.06, 0.08), 3: (-0.10, 0.0, 0.10)}  # m along the lane
+CLAMP_Y = -0.24  # m
+WIRE_ANGLE = (math.radians(25.0), math.radians(40.0))  # off the lane, towards the robot
+PLUG_HEIGHT = (0.06, 0.11)
+PLUG_ROLL = math.radians(18.0)
+MAX_CLIPS = 3
+WIRE_SAMPLES = 10
+SLOT_SAMPLING = 0.002  # m between centre-line samples when judging "in the slot"
+
+
+@TASKS.register("routing")
+class RoutingTask(Task):
+    name = "routing"
+    gym_id = "WireCraft/ClipRouting-v0"
+    default_control = "cartesian"
+    default_weights = {
+        "reach": 10.0,
+        "grasp": 20.0,
+        "lift": 10.0,
+        "over_slot": 20.0,
+        "routed": 50.0,
+        "all_routed": 500.0,
+        "action": -0.1,
+        "collision": -10.0,
+    }
+
+    def __init__(
+        self,
+        num_clips: int = 1,
+        clip_opening: float | None = None,
+        connector: str = "ethernet",
+        weights=None,
+    ):
+        super().__init__(weights)
+        if num_clips not in CLIP_Y:
+            raise ValueError(f"routing: num_clips must be one of 1, 2, 3; got {num_clips!r}")
+        self.num_clips = num_clips
+        self.clip_opening = clip_opening
+        self.connector = make_connector(connector)
+
+    @property
+    def instruction(self) -> str:
+        clips = "the clip" if self.num_clips == 1 else f"all {self.num_clips} clips"
+        return f"Route the cable through {clips}."
+
+    def build_scene(self, spec, wire_config) -> None:
+        self.assembly = WireAssembly.build(spec, wire_config, self.connector)
+        diameter = 2 * self.assembly.wire.config.radius
+        # By default the lips narrow the mouth 1 mm below the wire's diameter: they retain it.
+        opening = self.clip_opening if self.clip_opening is not None else diameter - 0.001
+        slot = max(ClipConfig().slot_width, diameter + 0.002)
+        self.clip_config = ClipConfig(slot_width=slot, opening=opening)
+        self.clip_names = []
+        for i in range(self.num_clips):
+            mount = spec.worldbody.add_body(name=f"clip{i}_mount", mocap=True)
+            add_clip(spec, self.clip_config, name=f"clip{i}", parent=mount)
+            self.clip_names.append(f"clip{i}")
+
+    def bind(self, model, robot) -> None:
+        super().bind(model, robot)
+        self.clip_mocap = [model.body(f"{n}_mount").mocapid[0] for n in self.clip_names]
+        self.clip_bodies = [model.body(n).id for n in self.clip_names]
+        self.clip_contacts = body_geom_ids(model, self.clip_names)
+
+    # -- episode ----------------------------------------------------------------------------
+    def initialize_episode(self, model, data, rng) -> None:
+        self.sampled = {"clips": []}
+        for mocap, y in zip(self.clip_mocap, CLIP_Y[self.num_clips], strict=True):
+            x = LANE_X + rng.uniform(-LANE_JITTER, LANE_JITTER)
+            yaw = math.pi / 2 + rng.uniform(-CLIP_YAW_JITTER, CLIP_YAW_JITTER)
+            data.mocap_pos[mocap] = (x, y, 0.0)
+            data.mocap_quat[mocap] = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+            self.sampled["clips"].append((x, y, yaw))
+        angle = rng.uniform(*WIRE_ANGLE)
+        roll = rng.uniform(-PLUG_ROLL, PLUG_ROLL)
+        length = self.assembly.wire.config.length
+        start = np.array([LANE_X, CLAMP_Y, 0.02])
+        rise = rng.uniform(*PLUG_HEIGHT) - start[2]
+        pitch = math.asin(rise / length)
+        direction = np.array(
+            [-math.sin(angle) * math.cos(pitch), math.cos(angle) * math.cos(pitch), math.sin(pitch)]
+        )
+        self.sampled.update(angle=angle, roll=roll, pitch=pitch)
+        self.assembly.place(model, data, start + length * direction, direction, roll)
+
+    # -- geometry ---------------------------------------------------------------------------
+    def placed_clips(self, data) -> list[PlacedClip]:
+        clips = []
+        for body in self.clip_bodies:
+            rot = data.xmat[body].reshape(3, 3)
+            clips.append(
+                PlacedClip(
+                    self.clip_config, tuple(data.xpos[body]), math.atan2(rot[1, 0], rot[0, 0])
+                )
+            )
+        return clips
+
+    def routed(self, model, data) -> list[bool]:
+        line = resample(self.wire_points(model, data), SLOT_SAMPLING)
+        return [bool(clip.contains(line).any()) for clip in self.placed_clips(data)]
+
+    def _target(self, model, data):
+        """The first clip not yet routed and the wire point nearest to its slot."""
+        routed = self.routed(model, data)
+        pending = [i for i, r in enumerate(routed) if not r]
+        index = pending[0] if pending else len(routed) - 1
+        clip = self.placed_clips(data)[index]
+        slot = np.array(clip.pos) + [0.0, 0.0, clip.config.base_height]
+        points = self.wire_points(model, data)
+        nearest = points[np.argmin(np.linalg.norm(points - slot, axis=1))]
+        return routed, clip, slot, nearest
+
+    # -- observation ------------------------------------------------------------------------
+    def privileged_state(self, model, data) -> np.ndarray:
+        robot = self.robot
+        tcp = self.to_base(data, data.site_xpos[self.tcp_site])
+        tcp_rot = self.rot_to_base(data, data.site_xmat[self.tcp_site].reshape(3, 3))
+        routed = self.routed(model, data)
+        base_yaw = math.atan2(data.site_xmat[self.base_site][3], data.site_xmat[self.base_site][0])
+        clips = np.zeros((MAX_CLIPS, 7))
+        for i, clip in enumerate(self.placed_clips(data)):
+            slot = np.array(clip.pos) + [0.0, 0.0, clip.config.base_height]
+            yaw = clip.yaw - base_yaw
+            clips[i] = [1.0, *self.to_base(data, slot), math.cos(yaw), math.sin(yaw), routed[i]]
+        points = self.wire_points(model, data)
+        samples = points[np.linspace(0, len(points) - 1, WIRE_SAMPLES).round().astype(int)]
+        return np.concatenate(
+            [
+                robot.proprioception(model, data),
+                tcp,
+                mat_to_quat(tcp_rot),
+                np.array(self.pad_contacts(model, data, self.assembly.wire_contacts), float),
+                clips.ravel(),
+                self.to_base(data, samples).ravel(),
+                self.to_base(data, data.xpos[model.body(self.assembly.clamp).id]),
+                self.to_base(data, data.xpos[self.assembly.plug_id]),
+            ]
+        )
+
+    # -- reward -----------------------------------------------------------------------------
+    def reward_terms(self, model, data, action) -> dict[str, float]:
+        routed, clip, slot, nearest = self._target(model, data)
+        held = all(self.pad_contacts(model, data, self.assembly.wire_contacts))
+        tcp = data.site_xpos[self.tcp_site]
+        clip_top = clip.pos[2] + clip.config.base_height + clip.config.slot_depth
+        horizontal = float(np.linalg.norm((nearest - slot)[:2]))
+        return {
+            "reach": shaped(float(np.linalg.norm(tcp - nearest)), 0.1),
+            "grasp": float(held),
+            "lift": float(held) * float(np.clip((nearest[2] - clip_top) / 0.02 + 1.0, 0, 1)),
+            "over_slot": float(held) * shaped(horizontal, 0.02),
+            "routed": float(np.mean(routed)),
+            "all_routed": float(all(routed)),
+            "action": float(np.sum(np.square(action))),
+            "collision": float(self.gripper_collision(model, data)),
+        }
+
+    def evaluate(self, model, data) -> dict[str, float | bool]:
+        routed = self.routed(model, data)
+        return {
+            "success": all(routed),
+            "clips_routed": int(sum(routed)),
+            "min_bend_radius": self.assembly.min_bend_radius(model, data),
+            "wire_tension": self.assembly.tension(model, data),
+            "grasp_force": self.grasp_force(model, data, self.assembly.wire_contacts),
+        }
