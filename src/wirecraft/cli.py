@@ -36,14 +36,22 @@ def _list_args(p):
     p.add_argument("--json", metavar="PATH", help="also write the listing as JSON")
 
 
-@command("list", "list connectors, wire models, printable parts and scenes", _list_args)
+@command(
+    "list", "list tasks, robots, control modes, connectors, wire models, parts, scenes", _list_args
+)
 def cmd_list(args) -> int:
+    from wirecraft import TASK_IDS
     from wirecraft.assets.connectors import CONNECTORS
     from wirecraft.assets.export import part_names
+    from wirecraft.assets.robots import ROBOTS
     from wirecraft.assets.wires import WIRE_MODELS
+    from wirecraft.control import CONTROLLERS
     from wirecraft.scenes import SCENES
 
     listing = {
+        "tasks": TASK_IDS,
+        "robots": ROBOTS.names(),
+        "controls": CONTROLLERS.names(),
         "connectors": {
             name: {"symmetry": cls.symmetry, "description": cls.description}
             for name, cls in ((n, CONNECTORS.get(n)) for n in CONNECTORS)
@@ -52,6 +60,11 @@ def cmd_list(args) -> int:
         "parts": part_names(),
         "scenes": SCENES.names(),
     }
+    print("tasks:")
+    for name, gym_id in TASK_IDS.items():
+        print(f"  {name:12s} {gym_id}")
+    print("robots: " + ", ".join(listing["robots"]))
+    print("control modes: " + ", ".join(listing["controls"]))
     print("connectors:")
     for name, info in listing["connectors"].items():
         fold = "continuous" if info["symmetry"] == 0 else f"{info['symmetry']}-fold"
@@ -171,10 +184,17 @@ def _demo_args(p):
     "demo", "run the main job on the CPU: drop every wire model onto the task board", _demo_args
 )
 def cmd_demo(args) -> int:
-    from wirecraft.demo import run_demo
+    from wirecraft.demo import run_demo, run_task_demo
 
     if not args.seconds > 0:
         raise ValueError(f"--seconds must be > 0, got {args.seconds}")
+    tasks = run_task_demo(args.out, seconds=args.seconds)
+    print(f"{'task':10s} {'steps/s':>8s} {'return':>9s} {'success':>8s} {'diverged':>8s}  goal")
+    for r in tasks:
+        print(
+            f"{r['task']:10s} {r['control_steps_per_s']:>8} {r['return']:>9.1f} "
+            f"{str(r['success']):>8s} {str(r['diverged']):>8s}  {r['instruction']}"
+        )
     rows = run_demo(args.out, seconds=args.seconds)
     header = (
         f"{'wire':12s} {'steps/s':>9s} {'x real time':>11s} {'in channel':>10s} {'diverged':>8s}"
@@ -185,9 +205,9 @@ def cmd_demo(args) -> int:
             f"{r['wire']:12s} {r['physics_steps_per_s']:>9} {r['realtime_factor']:>11} "
             f"{r['fraction_in_channel']:>10.0%} {str(r['diverged']):>8s}"
         )
-    write_json(args.json or str(Path(args.out) / "summary.json"), {"rows": rows})
-    print(f"wrote {args.out}/wires.png and the summary")
-    return 1 if any(r["diverged"] for r in rows) else 0
+    write_json(args.json or str(Path(args.out) / "summary.json"), {"tasks": tasks, "rows": rows})
+    print(f"wrote {args.out}/tasks.png, {args.out}/wires.png and the summary")
+    return 1 if any(r["diverged"] for r in rows + tasks) else 0
 
 
 def build_parser() -> argparse.ArgumentParser:
