@@ -93,11 +93,15 @@ def test_export_stl_all_parts(tmp_path):
 
 def test_demo_writes_strip_and_summary(tmp_path):
     assert main(["demo", "--out", str(tmp_path), "--seconds", "0.4"]) == 0
-    rows = json.loads((tmp_path / "summary.json").read_text())["rows"]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    rows, tasks = summary["rows"], summary["tasks"]
     assert [r["wire"] for r in rows] == WIRE_MODELS.names()
-    assert not any(r["diverged"] for r in rows)
-    strip = np.asarray(Image.open(tmp_path / "wires.png"))
-    assert strip.shape[0] == 240 * len(rows) and strip.std() > 10
+    assert [t["task"] for t in tasks] == ["insertion", "routing", "seating"]
+    assert not any(r["diverged"] for r in rows + tasks)
+    assert all(t["control_steps_per_s"] > 0 for t in tasks)
+    for name, count in (("wires.png", len(rows)), ("tasks.png", len(tasks))):
+        strip = np.asarray(Image.open(tmp_path / name))
+        assert strip.shape[0] == 240 * count and strip.std() > 10
 
 
 def test_demo_rejects_non_positive_duration(capsys):
