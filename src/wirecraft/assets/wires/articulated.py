@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 
 from wirecraft import physics
+from wirecraft.assets.wires import shape
 from wirecraft.assets.wires.base import ATTACH_SOLIMP, ATTACH_SOLREF, WIRE_MODELS, WireHandle
 
 JOINT_LIMIT = 0.5  # rad, cone half-angle of each ball joint
@@ -135,3 +136,40 @@ class ArticulatedWire(WireHandle):
         last = ids[-1]
         tip = data.xpos[last] + data.xmat[last].reshape(3, 3)[:, 0] * self.config.segment_length
         return np.vstack([starts, tip])
+
+    # -- set_centerline ------------------------------------------------------------------------
+    def _shape_nodes(self) -> tuple[int, float]:
+        return self.config.segments, self.config.segment_length
+
+    def _shape_ids(self, model: mujoco.MjModel) -> dict[str, np.ndarray]:
+        bodies = np.asarray(self._resolve(model))
+        joints = []
+        for i, body in enumerate(bodies):
+            name = f"{self.name}_root" if i == 0 else f"{self.name}_j{i}"
+            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+            if jid < 0 or model.jnt_bodyid[jid] != body:
+                raise ValueError(f"no joint named {name!r} on {self.body_name(i)!r}")
+            joints.append(jid)
+        return {"bodies": bodies, "joints": np.asarray(joints)}
+
+    def _set_shape(self, model, data, ids, nodes, frames, roll) -> None:
+        # Capsule i runs from node i to node i + 1 along its body's +x (nodes are one segment
+        # apart), so its body frame is chord frame i.  Ball joint i holds the rotation of body i
+        # relative to body i - 1 (whose child frame is offset by (seg, 0, 0), identity quat).
+        balls = [
+            shape.quat_mul(shape.quat_conj(frames[i - 1]), frames[i]) for i in range(1, len(frames))
+        ]
+        for i, quat in enumerate(balls, start=1):
+            angle = shape.quat_angle(quat)
+            if angle > JOINT_LIMIT + 1e-9:
+                raise ValueError(
+                    f"wire {self.name!r}: the shape bends joint {i} by {angle:.3f} rad, over the "
+                    f"joint limit {JOINT_LIMIT} rad"
+                )
+        joints = ids["joints"]
+        root = model.jnt_qposadr[joints[0]]
+        data.qpos[root : root + 3] = nodes[0]
+        data.qpos[root + 3 : root + 7] = frames[0] / np.linalg.norm(frames[0])
+        for jid, quat in zip(joints[1:], balls, strict=True):
+            adr = model.jnt_qposadr[jid]
+            data.qpos[adr : adr + 4] = quat / np.linalg.norm(quat)

@@ -27,6 +27,7 @@ import mujoco
 import numpy as np
 
 from wirecraft import physics, validation
+from wirecraft.assets.wires import shape
 from wirecraft.registry import Registry
 
 Vec3 = tuple[float, float, float]
@@ -181,6 +182,7 @@ class WireHandle(ABC):
         self.quat = q / np.linalg.norm(q)
         self.attached: dict[str, str] = {}
         self._ids: object | None = None
+        self._shape_cache: tuple[mujoco.MjModel, dict[str, np.ndarray]] | None = None
         self._build(spec)
 
     # -- geometry of the straight, as-built wire -------------------------------------------------
@@ -239,6 +241,57 @@ class WireHandle(ABC):
     def num_points(self) -> int:
         """Number of rows returned by ``points``."""
 
+    def set_centerline(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        points: np.ndarray,
+        *,
+        roll: float = 0.0,
+    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Put the wire into the shape of the polyline ``points`` (K, 3), world frame, at rest.
+
+        The polyline runs from the wire's "start" end to its "end" end; it is extended straight
+        along its last segment if shorter than the wire and truncated if longer.  The wire's
+        nodes are placed *on* the polyline, consecutive nodes exactly one segment (capsule, rod
+        edge or FEM cell) apart (``shape.chord_walk``), so the state satisfies the model's
+        length constraints; after a kink the nodes lag their arc-length position by
+        ~l (1 - cos(kink / 2)) per kink (l: the segment length), see docs/physics.md.
+
+        The cross-section / material frame follows the polyline by parallel transport from the
+        as-built wire frame turned by the smallest rotation onto the polyline's start tangent,
+        then is rolled by ``roll`` (rad) about the tangent everywhere.  (For a polyline lying on
+        the table and a wire built with its z axis up, z stays up at ``roll`` = 0.)
+
+        Sets the wire's generalized positions (and rod reference frames in ``data.plastic``),
+        zeroes its velocities and calls ``mj_forward``.  Bodies attached to the wire are not
+        moved: the returned dict gives, for "start" and "end", the world pose (pos (3,), quat
+        (4,) w-x-y-z) where the attached body must be placed (module docstring's convention;
+        for the as-built straight polyline and ``roll`` = 0 this is ``end_pose(end)``).
+        Raises ValueError if the shape would violate a model limit (the capsule chain's joint
+        cone).
+        """
+        roll = float(roll)
+        if not math.isfinite(roll):
+            raise ValueError(f"set_centerline: roll must be finite, got {roll!r}")
+        poly = shape.clean_polyline(points)
+        count, step = self._shape_nodes()
+        nodes = shape.chord_walk(poly, step, count)
+        axis = _rotate(self.quat, np.array([1.0, 0.0, 0.0]))
+        frames = shape.transport_frames(nodes, self.quat, axis, roll)
+        ids = self._shape_resolve(model)
+        self._set_shape(model, data, ids, nodes, frames, roll)
+        dofs = _joint_dofs(model, ids["joints"])
+        data.qvel[dofs] = 0.0
+        data.qacc_warmstart[dofs] = 0.0
+        mujoco.mj_forward(model, data)
+        poses = {}
+        for end, node, frame in (("start", nodes[0], frames[0]), ("end", nodes[-1], frames[-1])):
+            _, lquat = self.end_pose_local(end)
+            quat = _quat_mul(frame, lquat)
+            poses[end] = (node.copy(), quat / np.linalg.norm(quat))
+        return poses
+
     # -- model-specific hooks --------------------------------------------------------------------
     @abstractmethod
     def _build(self, spec: mujoco.MjSpec) -> None: ...
@@ -251,6 +304,33 @@ class WireHandle(ABC):
 
     @abstractmethod
     def _points(self, model: mujoco.MjModel, data: mujoco.MjData, ids: object) -> np.ndarray: ...
+
+    @abstractmethod
+    def _shape_nodes(self) -> tuple[int, float]:
+        """(number of segments, segment length) of the chain the shape is laid out on."""
+
+    @abstractmethod
+    def _shape_ids(self, model: mujoco.MjModel) -> dict[str, np.ndarray]:
+        """Ids ``set_centerline`` needs; key "joints": every joint of the wire."""
+
+    @abstractmethod
+    def _set_shape(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        ids: dict[str, np.ndarray],
+        nodes: np.ndarray,
+        frames: np.ndarray,
+        roll: float,
+    ) -> None:
+        """Write qpos (and any other state) for nodes (count + 1, 3) and chord frames (count, 4)."""
+
+    def _shape_resolve(self, model: mujoco.MjModel) -> dict[str, np.ndarray]:
+        cached = self._shape_cache
+        if cached is None or cached[0] is not model:
+            cached = (model, self._shape_ids(model))
+            self._shape_cache = cached
+        return cached[1]
 
     # -- helpers shared by the flex models ---------------------------------------------------------
     def _contact_xml(self, selfcollide: str) -> str:
@@ -312,6 +392,57 @@ class WireHandle(ABC):
             eq.solref = ATTACH_SOLREF
             eq.solimp = ATTACH_SOLIMP
             spec.add_exclude(bodyname1=body_name, bodyname2=wire_body)
+
+
+def _joint_dofs(model: mujoco.MjModel, joints: np.ndarray) -> np.ndarray:
+    """Dof indices of the given joints."""
+    sizes = {
+        mujoco.mjtJoint.mjJNT_FREE: 6,
+        mujoco.mjtJoint.mjJNT_BALL: 3,
+        mujoco.mjtJoint.mjJNT_SLIDE: 1,
+        mujoco.mjtJoint.mjJNT_HINGE: 1,
+    }
+    out = [
+        model.jnt_dofadr[j] + k
+        for j in joints
+        for k in range(sizes[mujoco.mjtJoint(model.jnt_type[j])])
+    ]
+    return np.asarray(out, dtype=int)
+
+
+def _static_pose(model: mujoco.MjModel, body: int) -> tuple[np.ndarray, np.ndarray]:
+    """World pose (pos, quat) of a body whose ancestors (and itself) have no joints."""
+    pos, quat = np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])
+    chain = []
+    while body != 0:
+        if model.body_jntnum[body] != 0:
+            raise ValueError(f"body {model.body(body).name!r} is not static")
+        chain.append(body)
+        body = model.body_parentid[body]
+    for b in reversed(chain):
+        pos = pos + _rotate(quat, model.body_pos[b])
+        quat = _quat_mul(quat, model.body_quat[b])
+    return pos, quat
+
+
+def set_slide_bodies(
+    model: mujoco.MjModel, data: mujoco.MjData, bodies: np.ndarray, targets: np.ndarray
+) -> None:
+    """Move bodies that each carry three orthogonal slide joints (flex vertices / nodes, whose
+    parents are static) so that their origins land on the world points ``targets``."""
+    for body, target in zip(bodies, np.asarray(targets, float), strict=True):
+        parent_pos, parent_quat = _static_pose(model, model.body_parentid[body])
+        origin = parent_pos + _rotate(parent_quat, model.body_pos[body])
+        quat = _quat_mul(parent_quat, model.body_quat[body])
+        adr, num = model.body_jntadr[body], model.body_jntnum[body]
+        for j in range(adr, adr + num):
+            if (
+                model.jnt_type[j] != mujoco.mjtJoint.mjJNT_SLIDE
+                or model.qpos0[model.jnt_qposadr[j]] != 0.0
+            ):
+                raise ValueError(f"body {model.body(body).name!r}: expected slide joints at 0")
+            axis = _rotate(quat, model.jnt_axis[j])
+            data.qpos[model.jnt_qposadr[j]] = float(axis @ (target - origin))
 
 
 def add_wire(

@@ -26,7 +26,8 @@ import math
 import mujoco
 import numpy as np
 
-from wirecraft.assets.wires.base import FLEX, WIRE_MODELS, WireHandle
+from wirecraft.assets.wires import shape
+from wirecraft.assets.wires.base import FLEX, WIRE_MODELS, WireHandle, set_slide_bodies
 
 
 @WIRE_MODELS.register("fem")
@@ -110,3 +111,44 @@ class FemWire(WireHandle):
     def _points(self, model: mujoco.MjModel, data: mujoco.MjData, ids: object) -> np.ndarray:
         verts = data.flexvert_xpos[ids]  # (n * 4, 3), x slowest
         return verts.reshape(-1, 4, 3).mean(axis=1)
+
+    # -- set_centerline ------------------------------------------------------------------------
+    def _shape_nodes(self) -> tuple[int, float]:
+        return self.cells, self.config.length / self.cells
+
+    def _shape_ids(self, model: mujoco.MjModel) -> dict[str, np.ndarray]:
+        bodies = np.zeros((self.cells + 1, 2, 2), dtype=int)
+        for i in range(self.cells + 1):
+            for j in range(2):
+                for k in range(2):
+                    name = self.node_name(i, j, k)
+                    bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+                    if bid < 0:
+                        raise ValueError(f"no node body named {name!r} in the model")
+                    bodies[i, j, k] = bid
+        flat = bodies.reshape(-1)
+        joints = [j for b in flat for j in range(model.body_jntadr[b], model.body_jntadr[b] + 3)]
+        return {"bodies": flat, "joints": np.asarray(joints)}
+
+    def _set_shape(self, model, data, ids, nodes, frames, roll) -> None:
+        # ``nodes`` are the centres of the node cross-sections (cell boundaries), ``frames`` the
+        # cells' frames.  Each cross-section is square to the mean of its two cells' tangents
+        # (the end ones to their cell), its corners at (0, +-h, +-h) in that frame.
+        h = self.side / 2
+        x_axis = np.array([1.0, 0.0, 0.0])
+        section = [frames[0]]
+        for i in range(1, len(frames)):
+            prev = shape.quat_rotate(frames[i - 1], x_axis)
+            mean = prev + shape.quat_rotate(frames[i], x_axis)
+            turn = shape.min_rotation(prev, mean / np.linalg.norm(mean), x_axis)
+            section.append(shape.quat_mul(turn, frames[i - 1]))
+        section.append(frames[-1])
+        targets = np.empty((len(nodes), 2, 2, 3))
+        for i, (centre, quat) in enumerate(zip(nodes, section, strict=True)):
+            rot = shape.quat_matrix(quat)
+            for j in range(2):
+                for k in range(2):
+                    targets[i, j, k] = centre + rot @ np.array(
+                        [0.0, (2 * j - 1) * h, (2 * k - 1) * h]
+                    )
+        set_slide_bodies(model, data, ids["bodies"], targets.reshape(-1, 3))

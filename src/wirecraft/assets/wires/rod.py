@@ -19,6 +19,7 @@ from wirecraft.assets.wires.base import (
     FLEX,
     WIRE_MODELS,
     WireHandle,
+    set_slide_bodies,
 )
 
 
@@ -88,3 +89,42 @@ class RodWire(WireHandle):
 
     def _points(self, model: mujoco.MjModel, data: mujoco.MjData, ids: object) -> np.ndarray:
         return data.flexvert_xpos[ids].copy()
+
+    # -- set_centerline ------------------------------------------------------------------------
+    def _shape_nodes(self) -> tuple[int, float]:
+        return self.config.segments, self.config.segment_length
+
+    def _twist_names(self) -> list[str]:
+        n = self.config.segments
+        return [f"{self.flex_name}_twist_{e}" for e in range(n - 1)] + [f"{self.flex_name}_twist"]
+
+    def _shape_ids(self, model: mujoco.MjModel) -> dict[str, np.ndarray]:
+        verts = np.asarray(self._resolve(model))
+        flex = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, self.flex_name)
+        bodies = model.flex_vertbodyid[verts]
+        twists = []
+        for name in self._twist_names():
+            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+            if jid < 0:
+                raise ValueError(f"no twist joint named {name!r} in the model")
+            twists.append(jid)
+        slides = [j for b in bodies for j in range(model.body_jntadr[b], model.body_jntadr[b] + 3)]
+        # reference frames (t, u) per edge, then the reference twist per interior vertex
+        n = self.config.segments
+        plastic = np.arange(model.flex_plasticadr[flex], model.flex_plasticadr[flex] + 7 * n - 1)
+        if plastic[-1] >= model.nplastic:
+            raise ValueError(f"flex {self.flex_name!r}: unexpected plastic layout")
+        return {
+            "bodies": bodies,
+            "twists": np.asarray(twists),
+            "joints": np.asarray(slides + twists),
+            "plastic": plastic,
+        }
+
+    def _set_shape(self, model, data, ids, nodes, frames, roll) -> None:
+        set_slide_bodies(model, data, ids["bodies"], nodes)
+        # Uniform material angle: no twist energy.  Zeroed reference frames make MuJoCo restart
+        # them at the next step, transported from qpos0 onto the new tangents twist-free
+        # (XMLreference, flex elasticity "State"), i.e. exactly the frames of this shape.
+        data.qpos[model.jnt_qposadr[ids["twists"]]] = roll
+        data.plastic[ids["plastic"]] = 0.0
