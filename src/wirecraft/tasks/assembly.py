@@ -21,6 +21,7 @@ from wirecraft.sensors import Contacts, body_geom_ids, flex_ids, quat_to_mat
 
 CLAMP_HALF = (0.02, 0.015, 0.012)  # m
 CLAMP_EXIT_DROP = -0.008  # m: block centre below the wire's start
+TABLE_CLEARANCE = 0.001  # m: a placed assembly starts at least this far above the table
 CLAMP_MASS = 0.2  # kg
 CLAMP_RGBA = (0.35, 0.35, 0.38, 1.0)
 
@@ -85,15 +86,26 @@ class WireAssembly:
             )
         )
 
-    def place(self, model, data, plug_pos, direction, roll: float) -> None:
+    def place(self, model, data, plug_pos, direction, roll: float) -> np.ndarray:
         """Lay the wire straight along ``direction`` (unit, the plug's insertion axis) ending at
-        ``plug_pos``, rolled by ``roll`` about it; put the plug and clamp on its ends; zero
-        their velocities."""
+        ``plug_pos``, rolled by ``roll`` about it; put the plug and clamp on its ends, at rest.
+
+        If any part would reach into the table (a pitched cable, a tilted clamp block), the
+        whole assembly is lifted until it clears it by ``TABLE_CLEARANCE``; returns the plug
+        position used.
+        """
         direction = np.asarray(direction, float) / np.linalg.norm(direction)
-        length = self.wire.config.length
-        start = np.asarray(plug_pos, float) - length * direction
-        points = np.linspace(start, plug_pos, 9)
-        ends = self.wire.set_centerline(model, data, points, roll=roll)
+        plug_pos = np.asarray(plug_pos, float)
+        self._lay(model, data, plug_pos, direction, roll)
+        lift = TABLE_CLEARANCE - self.lowest_point(model, data)
+        if lift > 0:
+            plug_pos = plug_pos + [0.0, 0.0, lift]
+            self._lay(model, data, plug_pos, direction, roll)
+        return plug_pos
+
+    def _lay(self, model, data, plug_pos, direction, roll) -> None:
+        start = plug_pos - self.wire.config.length * direction
+        ends = self.wire.set_centerline(model, data, np.linspace(start, plug_pos, 9), roll=roll)
         for body_qpos, body_dof, end in (
             (self.plug_qpos, self.plug_dof, "end"),
             (self.clamp_qpos, self.clamp_dof, "start"),

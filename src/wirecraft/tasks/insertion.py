@@ -48,7 +48,6 @@ PLUG_OFFSET = (0.15, 0.05)  # m, +/- across (x) and along (y) the insertion axis
 PLUG_HEIGHT = (0.06, 0.11)  # m
 PLUG_ROLL_PITCH = math.radians(18.0)
 PLUG_YAW = math.radians(36.0)
-CLEARANCE_ABOVE_TABLE = 0.01  # m: a pitched cable is lifted to clear the table by this much
 
 AXIAL_TOLERANCE = 0.002  # m
 LATERAL_TOLERANCE = 0.001  # m beyond the clearance
@@ -135,10 +134,7 @@ class InsertionTask(Task):
             ]
         )
         self.sampled = {"port": port, "plug": plug.copy(), "yaw": yaw, "pitch": pitch, "roll": roll}
-        self.assembly.place(model, data, plug, axis, roll)
-        lift = CLEARANCE_ABOVE_TABLE - self.assembly.lowest_point(model, data)
-        if lift > 0:
-            self.assembly.place(model, data, plug + [0.0, 0.0, lift], axis, roll)
+        self.sampled["placed_plug"] = self.assembly.place(model, data, plug, axis, roll)
         self.depth_high_water = 0.0
 
     # -- geometry ---------------------------------------------------------------------------
