@@ -126,14 +126,14 @@ class WireCraftEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         model, data = self.model, self.data
-        for attempt in range(1, RESET_ATTEMPTS + 1):
-            # Later attempts continue the same seeded stream: still deterministic.
-            if self._settle_new_episode():
-                break
-        else:
-            raise RuntimeError(
-                f"the scene diverged while settling at reset, {RESET_ATTEMPTS} times in a row"
-            )
+        # Later attempts continue the same seeded stream: still deterministic.
+        attempt = 1
+        while not self._settle_new_episode():
+            if attempt == RESET_ATTEMPTS:
+                raise RuntimeError(
+                    f"the scene diverged while settling at reset, {attempt} times in a row"
+                )
+            attempt += 1
         self._steps = 0
         obs = self._observe()
         info = {
