@@ -1,8 +1,8 @@
 """Control modes shared by every robot: ``joint``, ``cartesian``, ``cartesian_fixed``.
 
-Timing: physics at 2 ms (``physics.TIMESTEP``), one control step = ``CONTROL_SUBSTEPS`` = 8
-physics steps = 16 ms (62.5 Hz, the closest to 60 Hz that 2 ms divides).  An 8 s episode is
-500 control steps.
+Timing: one control step = ``CONTROL_SUBSTEPS`` = 8 physics steps, whatever the model's
+timestep: 16 ms (62.5 Hz) at 2 ms; the environments use 1/480 s, hence exactly 60 Hz and 480
+control steps per 8 s episode.
 
 Actions are in [-1, 1] (clipped); the last element is the gripper command (-1 fully open,
 +1 closed, linear in between: commanded pad gap = (1 - g) / 2 * max_opening).  NaN or infinite

@@ -88,6 +88,8 @@ class WireCraftEnv(gym.Env):
         self.robot = add_robot(spec, robot)
         self.task.build_scene(spec, wire_config or WireConfig(model=wire))
         self.model = compile_spec(spec)
+        # MuJoCo would otherwise reset a diverged simulation silently; we detect and report it.
+        self.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         self.data = mujoco.MjData(self.model)
         self.robot.reset_home(self.model, self.data)  # a valid state before the first reset
         self._speed_limits = _speed_limits(self.model)
@@ -177,6 +179,9 @@ class WireCraftEnv(gym.Env):
         before = self.get_state()
         self.controller.apply(data, action)
         mujoco.mj_step(model, data, nstep=SUBSTEPS)
+        # mj_step leaves positions and contacts one substep behind qpos: bring them up to date,
+        # so observations, rewards and success all describe the same instant.
+        mujoco.mj_forward(model, data)
         self._steps += 1
         if not self._healthy():
             self.set_state(before)

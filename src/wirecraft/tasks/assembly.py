@@ -8,6 +8,7 @@ settle.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import mujoco
@@ -105,7 +106,16 @@ class WireAssembly:
 
     def _lay(self, model, data, plug_pos, direction, roll) -> None:
         start = plug_pos - self.wire.config.length * direction
-        ends = self.wire.set_centerline(model, data, np.linspace(start, plug_pos, 9), roll=roll)
+        line = np.linspace(start, plug_pos, 9)
+        # set_centerline rolls relative to its own minimal-rotation frame; the task's roll is
+        # measured from the frame whose y axis is horizontal (rotation_from_axis).
+        natural = quat_to_mat(self.wire.set_centerline(model, data, line)["end"][1])
+        wanted = rotation_from_axis(direction, roll)
+        offset = math.atan2(
+            float(np.dot(np.cross(natural[:, 1], wanted[:, 1]), direction)),
+            float(np.dot(natural[:, 1], wanted[:, 1])),
+        )
+        ends = self.wire.set_centerline(model, data, line, roll=offset)
         for body_qpos, body_dof, end in (
             (self.plug_qpos, self.plug_dof, "end"),
             (self.clamp_qpos, self.clamp_dof, "start"),

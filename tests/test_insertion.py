@@ -1,0 +1,548 @@
+"""Connector insertion: reset randomization, success predicates, privileged state, rewards.
+
+Ranges come from SPEC section 5 (and insertion.py's module constants, which map the spec's
+x/y onto the world: the insertion axis is world +y, so the spec's "x offset +/-5 cm" (along
+the axis) is world y and its "y offset +/-15 cm" (across) is world x).  Success is checked on
+hand-placed states: the plug is put exactly where the port's own geometry says it is seated,
+with the cable laid consistently behind it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import mujoco
+import numpy as np
+import pytest
+
+import wirecraft
+from wirecraft.assets.connectors import CONNECTORS
+from wirecraft.tasks import insertion as ins
+
+# SPEC section 5, written out here (the module constants are checked against them).
+SPEC_PLUG_HEIGHT = (0.06, 0.11)  # m above the table
+SPEC_ROLL_PITCH = math.radians(18.0)
+SPEC_YAW = math.radians(36.0)
+SPEC_OFFSET_ALONG = 0.05  # m, +/- along the insertion axis
+SPEC_OFFSET_ACROSS = 0.15  # m, +/- across it
+SPEC_PORT_ACROSS_SPAN = 0.28  # m
+SPEC_PORT_HEIGHT_SPAN = 0.15  # m
+REACH_DISTANCE = 0.02  # m (SPEC: the held plug within 2 cm of the socket)
+
+NUM_RESETS = 200
+COVERAGE = 0.2  # the extremes seen must come within 20% of the range of each bound
+TABLE_TOP = 0.0
+
+
+def make(**kwargs):
+    return wirecraft.make("insertion", **kwargs)
+
+
+def port_frame(env):
+    """World positions of the port's entry and seated sites and the port's rotation."""
+    model, data = env.unwrapped.model, env.unwrapped.data
+    entry = data.site_xpos[model.site("port_entry").id].copy()
+    seated = data.site_xpos[model.site("port_seated").id].copy()
+    rot = data.xmat[model.body("port").id].reshape(3, 3).copy()
+    return entry, seated, rot
+
+
+def rot_x(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def place_plug(env, back: float = 0.0, lateral=(0.0, 0.0), roll: float = 0.0) -> None:
+    """Put the plug in the port's frame: seated, minus ``back`` metres along the socket axis,
+    plus ``lateral`` (port y, port z) metres, rolled by ``roll`` about the axis; the cable is
+    laid straight behind it (``WireAssembly.place`` moves wire, plug and clamp together)."""
+    unwrapped = env.unwrapped
+    model, data = unwrapped.model, unwrapped.data
+    connector = unwrapped.task.connector
+    _, seated, rot = port_frame(env)
+    axis = rot[:, 0]
+    # The plug tip is at plug-frame (plug_length, 0, 0): seated, the tip is on the seated site.
+    tip_local = model.site_pos[model.site("plug_tip").id]
+    assert np.allclose(tip_local, [connector.plug_length, 0.0, 0.0])
+    origin = (
+        seated
+        - (connector.plug_length + back) * axis
+        + lateral[0] * rot[:, 1]
+        + lateral[1] * rot[:, 2]
+    )
+    unwrapped.task.assembly.place(model, data, origin, axis, roll)
+    # Precondition of every check below: the plug really is where we meant it to be.
+    plug_rot = data.xmat[unwrapped.task.assembly.plug_id].reshape(3, 3)
+    assert np.allclose(plug_rot, rot @ rot_x(roll), atol=1e-9)
+    assert np.allclose(data.xpos[unwrapped.task.assembly.plug_id], origin, atol=1e-9)
+
+
+def evaluate(env) -> dict:
+    unwrapped = env.unwrapped
+    return unwrapped.task.evaluate(unwrapped.model, unwrapped.data)
+
+
+# -- module constants against the SPEC ------------------------------------------------------
+
+
+def test_module_ranges_match_spec():
+    assert ins.PLUG_HEIGHT == pytest.approx(SPEC_PLUG_HEIGHT)
+    assert ins.PLUG_ROLL_PITCH == pytest.approx(SPEC_ROLL_PITCH)
+    assert ins.PLUG_YAW == pytest.approx(SPEC_YAW)
+    assert np.allclose(ins.INSERTION_AXIS, [0.0, 1.0, 0.0])
+    assert ins.PLUG_OFFSET == pytest.approx((SPEC_OFFSET_ACROSS, SPEC_OFFSET_ALONG))
+    assert ins.PORT_X_RANGE[1] - ins.PORT_X_RANGE[0] == pytest.approx(SPEC_PORT_ACROSS_SPAN)
+    assert ins.PORT_Z_RANGE[1] - ins.PORT_Z_RANGE[0] == pytest.approx(SPEC_PORT_HEIGHT_SPAN)
+    assert ins.REACH_DISTANCE == pytest.approx(REACH_DISTANCE)
+    # The whole port stays above the table.
+    assert ins.PORT_Z_RANGE[0] > TABLE_TOP
+
+
+# -- 4. randomization at reset --------------------------------------------------------------
+
+
+def assert_inside_and_covered(values, low: float, high: float, name: str) -> None:
+    values = np.asarray(values)
+    assert values.min() >= low and values.max() <= high, (name, values.min(), values.max())
+    margin = COVERAGE * (high - low)
+    assert values.min() <= low + margin, (name, "low end not reached", values.min())
+    assert values.max() >= high - margin, (name, "high end not reached", values.max())
+
+
+def test_reset_randomization_ranges_and_settling():
+    env = make()
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    plug_id = task.assembly.plug_id
+    plug_dof = task.assembly.plug_dof
+    mount = model.body("port_mount").mocapid[0]
+    radius = task.assembly.wire.config.radius
+    cx, cy = ins.PLUG_CENTRE
+    samples = {k: [] for k in ("port_x", "port_y", "port_z", "x", "y", "z", "yaw", "pitch", "roll")}
+    start = time.perf_counter()
+    for seed in range(NUM_RESETS):
+        obs, info = env.reset(seed=seed)
+        s = task.sampled
+        port = data.mocap_pos[mount].copy()
+        assert np.array_equal(port, s["port"])
+        for key, value in zip(("port_x", "port_y", "port_z"), port, strict=True):
+            samples[key].append(value)
+        for key, value in zip(("x", "y", "z"), s["plug"], strict=True):
+            samples[key].append(value)
+        for key in ("yaw", "pitch", "roll"):
+            samples[key].append(s[key])
+        # The port's mouth is the mocap position, facing the insertion axis.
+        entry, _, rot = port_frame(env)
+        assert np.allclose(entry, port, atol=1e-9)
+        assert np.allclose(rot[:, 0], ins.INSERTION_AXIS, atol=1e-9)
+        # After settling: the plug lies on the table, at rest; the wire on the table too;
+        # nothing diverged (finite, slow).
+        assert not info["diverged"] and np.all(np.isfinite(obs))
+        assert TABLE_TOP < data.xpos[plug_id][2] < TABLE_TOP + 0.02, seed
+        assert np.abs(data.qvel[plug_dof : plug_dof + 3]).max() < 0.05, seed
+        assert np.abs(data.qvel).max() < 5.0, seed
+        points = unwrapped.wire_points()
+        assert points[:, 2].min() > TABLE_TOP + radius - 0.002, seed
+        assert points[:, 2].max() < TABLE_TOP + 0.05, seed
+        assert not info["success"] and not info["reach_success"]
+    elapsed = time.perf_counter() - start
+    print(f"{NUM_RESETS} resets in {elapsed:.1f} s ({1e3 * elapsed / NUM_RESETS:.0f} ms each)")
+    env.close()
+    assert np.all(np.asarray(samples["port_y"]) == ins.PORT_Y)
+    assert_inside_and_covered(samples["port_x"], *ins.PORT_X_RANGE, "port x")
+    assert_inside_and_covered(samples["port_z"], *ins.PORT_Z_RANGE, "port z")
+    assert_inside_and_covered(samples["x"], cx - SPEC_OFFSET_ACROSS, cx + SPEC_OFFSET_ACROSS, "x")
+    assert_inside_and_covered(samples["y"], cy - SPEC_OFFSET_ALONG, cy + SPEC_OFFSET_ALONG, "y")
+    assert_inside_and_covered(samples["z"], *SPEC_PLUG_HEIGHT, "z")
+    assert_inside_and_covered(samples["yaw"], -SPEC_YAW, SPEC_YAW, "yaw")
+    assert_inside_and_covered(samples["pitch"], -SPEC_ROLL_PITCH, SPEC_ROLL_PITCH, "pitch")
+    assert_inside_and_covered(samples["roll"], -SPEC_ROLL_PITCH, SPEC_ROLL_PITCH, "roll")
+
+
+def expected_plug_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """Plug x along the insertion direction (yawed about +z from +y, pitched up), its y
+    horizontal, then rolled about x: written out independently of the package."""
+    x = np.array(
+        [-math.sin(yaw) * math.cos(pitch), math.cos(yaw) * math.cos(pitch), math.sin(pitch)]
+    )
+    y = np.cross([0.0, 0.0, 1.0], x)
+    y /= np.linalg.norm(y)
+    z = np.cross(x, y)
+    return np.column_stack([x, y, z]) @ rot_x(roll)
+
+
+def test_spawn_pose_follows_the_samples():
+    """Before settling, the plug is where the samples say (lifted straight up only when the
+    pitched cable would otherwise reach into the table) and nothing starts inside the table."""
+    env = make()
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    plug_id = task.assembly.plug_id
+    radius = task.assembly.wire.config.radius
+    lifted = 0
+    for seed in range(40):
+        task.initialize_episode(model, data, np.random.default_rng(seed))
+        s = task.sampled
+        pos = data.xpos[plug_id]
+        assert np.allclose(pos[:2], s["plug"][:2], atol=1e-9)
+        assert pos[2] >= s["plug"][2] - 1e-9
+        if pos[2] > s["plug"][2] + 1e-9:
+            lifted += 1
+        rot = data.xmat[plug_id].reshape(3, 3)
+        expected = expected_plug_rotation(s["yaw"], s["pitch"], s["roll"])
+        assert np.allclose(rot[:, 0], expected[:, 0], atol=1e-6), "insertion axis (yaw, pitch)"
+        # Roll: the plug's y axis measured from the horizontal, about the insertion axis.
+        applied = math.atan2(rot[:, 1] @ expected[:, 2], rot[:, 1] @ expected[:, 1])
+        applied += s["roll"]
+        assert applied == pytest.approx(s["roll"], abs=1e-6), (
+            f"seed {seed}: applied roll {math.degrees(applied):.1f} deg, "
+            f"sampled {math.degrees(s['roll']):.1f} deg (SPEC: within +/-18 deg)"
+        )
+        # The cable runs straight behind the plug and stays clear of the table.
+        points = unwrapped.wire_points()
+        direction = (points[-1] - points[0]) / np.linalg.norm(points[-1] - points[0])
+        assert np.allclose(direction, rot[:, 0], atol=1e-3)
+        assert points[:, 2].min() - radius >= TABLE_TOP - 1e-9
+        assert np.all(data.qvel[task.assembly.plug_dof : task.assembly.plug_dof + 6] == 0.0)
+    assert 0 < lifted < 40  # both cases occur in 40 samples
+    env.close()
+
+
+# -- 5. success predicates on hand-placed states --------------------------------------------
+
+
+@pytest.mark.parametrize("connector", CONNECTORS.names())
+def test_seated_plug_is_inserted(connector):
+    env = make(connector=connector)
+    env.reset(seed=3)
+    place_plug(env)
+    model, data = env.unwrapped.model, env.unwrapped.data
+    tip = data.site_xpos[model.site("plug_tip").id]
+    _, seated, _ = port_frame(env)
+    assert np.linalg.norm(tip - seated) < 1e-9
+    result = evaluate(env)
+    assert result["insert_success"] is True
+    assert result["success"] is True
+    # Inserted counts as reached even without a grasp.
+    assert result["reach_success"] is True
+    assert result["lateral_error"] == pytest.approx(0.0, abs=1e-9)
+    assert result["insertion_depth"] == pytest.approx(env.unwrapped.task.connector.cavity_depth)
+    env.close()
+
+
+@pytest.mark.parametrize(
+    ("back", "lateral", "inserted"),
+    [
+        (0.001, "none", True),  # 1 mm short: within the 2 mm axial tolerance
+        (0.003, "none", False),  # 3 mm short: not seated
+        (0.03, "none", False),  # 3 cm back along the axis
+        (0.0, "half_clearance", True),  # off the axis by half the clearance: it fits
+        (0.0, "beyond", False),  # off the axis by clearance + 2 mm
+    ],
+)
+def test_insert_success_boundaries(back, lateral, inserted):
+    env = make()
+    env.reset(seed=4)
+    clearance = env.unwrapped.task.connector.clearance
+    off = {
+        "none": 0.0,
+        "half_clearance": 0.5 * clearance,
+        "beyond": clearance + 0.002,  # the shell would be 2 mm inside the socket wall
+    }[lateral]
+    place_plug(env, back=back, lateral=(off, 0.0))
+    result = evaluate(env)
+    assert result["insert_success"] is inserted
+    assert result["success"] is inserted
+    # Nobody holds the plug: it counts as reached only when inserted.
+    assert result["reach_success"] is inserted
+    env.close()
+
+
+@pytest.mark.parametrize("back", [0.005, 0.03])
+def test_near_but_not_held_is_not_reached(back):
+    """The tip 5 mm before the mouth (within 2 cm) or 3 cm back, lying loose: no reach."""
+    env = make()
+    env.reset(seed=5)
+    place_plug(env, back=back + env.unwrapped.task.connector.cavity_depth)
+    model, data = env.unwrapped.model, env.unwrapped.data
+    entry, _, _ = port_frame(env)
+    tip = data.site_xpos[model.site("plug_tip").id]
+    assert np.linalg.norm(tip - entry) == pytest.approx(back)
+    result = evaluate(env)
+    assert result["reach_success"] is False
+    assert result["insert_success"] is False
+    env.close()
+
+
+@pytest.mark.parametrize(
+    ("connector", "roll", "expected"),
+    [
+        ("ethernet", math.pi, math.pi),  # keyed: upside down is wrong by 180 deg
+        ("displayport", math.radians(30.0), math.radians(30.0)),
+        ("cuboid", math.pi, 0.0),  # two-fold symmetric: upside down fits
+        ("usb_a", math.pi, 0.0),
+        ("usb_a", math.radians(-20.0), math.radians(20.0)),
+        ("cylinder", 1.234, 0.0),  # round: any roll fits
+    ],
+)
+def test_roll_error_respects_connector_symmetry(connector, roll, expected):
+    env = make(connector=connector)
+    env.reset(seed=6)
+    place_plug(env, roll=roll)
+    assert evaluate(env)["roll_error"] == pytest.approx(expected, abs=1e-9)
+    env.close()
+
+
+def tcp_pos(env) -> np.ndarray:
+    unwrapped = env.unwrapped
+    return unwrapped.data.site_xpos[unwrapped.model.site(unwrapped.robot.tcp_site).id].copy()
+
+
+def drive_tcp_height(env, z: float, gripper: float, steps: int) -> dict:
+    info = {}
+    for _ in range(steps):
+        action = np.zeros(env.action_space.shape)
+        action[2] = np.clip((z - tcp_pos(env)[2]) / 0.01, -1.0, 1.0)
+        action[-1] = gripper
+        _, _, _, _, info = env.step(action)
+        assert not info["diverged"]
+    return info
+
+
+def pads_touch_plug(env) -> tuple[bool, bool]:
+    """Contacts read straight from MuJoCo: each pad against any plug geom."""
+    unwrapped = env.unwrapped
+    model, data = unwrapped.model, unwrapped.data
+    plug = unwrapped.task.assembly.plug_id
+    result = []
+    for name in unwrapped.robot.pad_geom_names:
+        pad = model.geom(name).id
+        hit = False
+        for c in data.contact[: data.ncon]:
+            pair = (int(c.geom[0]), int(c.geom[1]))
+            other = pair[1] if pair[0] == pad else pair[0] if pair[1] == pad else -1
+            hit |= other >= 0 and model.geom_bodyid[other] == plug
+        result.append(bool(hit))
+    return tuple(result)
+
+
+def test_reach_success_needs_the_plug_held_near_the_socket():
+    """Grasp the plug from the table, lift it, then put the port's mouth 1 cm in front of its
+    tip (aligned with it): reached.  Move the port 5 cm further: not reached."""
+    env = make()
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    assembly = task.assembly
+    drive_tcp_height(env, 0.10, -1.0, 30)
+    # Lay the plug on the table under the open gripper, its tail centred below the TCP and
+    # pointing away from the robot (-x), the cable behind it along +x.
+    tcp = tcp_pos(env)
+    axis = np.array([-1.0, 0.0, 0.0])
+    grasp_local = model.site_pos[assembly.grasp_site][0]
+    assembly.place(model, data, np.array([tcp[0], tcp[1], 0.02]) - grasp_local * axis, axis, 0.0)
+    drive_tcp_height(env, 0.10, -1.0, 30)  # the plug drops and settles
+    assert pads_touch_plug(env) == (False, False)
+    drive_tcp_height(env, 0.012, -1.0, 30)  # down around the tail
+    drive_tcp_height(env, 0.012, 1.0, 40)  # close
+    info = drive_tcp_height(env, 0.08, 1.0, 30)  # lift
+    assert pads_touch_plug(env) == (True, True), "the scripted grasp failed"
+    assert info["grasp_force"] > 0.0
+    assert data.xpos[assembly.plug_id][2] > 0.05  # really lifted off the table
+
+    mount = model.body("port_mount").mocapid[0]
+    mujoco.mj_forward(model, data)  # after mj_step, xpos/xmat lag qpos by one substep
+    tip = data.site_xpos[assembly.tip_site].copy()
+    plug_rot = data.xmat[assembly.plug_id].reshape(3, 3).copy()
+    for gap, reached in ((0.01, True), (0.05, False)):
+        data.mocap_pos[mount] = tip + gap * plug_rot[:, 0]
+        data.mocap_quat[mount] = data.xquat[assembly.plug_id]
+        mujoco.mj_forward(model, data)
+        entry, _, port_rot = port_frame(env)
+        assert np.allclose(port_rot, plug_rot, atol=1e-9)
+        assert np.linalg.norm(entry - tip) == pytest.approx(gap)
+        assert pads_touch_plug(env) == (True, True)
+        result = evaluate(env)
+        assert result["reach_success"] is reached, gap
+        assert result["insert_success"] is False
+    env.close()
+
+
+# -- privileged state -----------------------------------------------------------------------
+
+
+def to_base(env, points):
+    unwrapped = env.unwrapped
+    site = unwrapped.model.site(unwrapped.robot.base_site).id
+    origin = unwrapped.data.site_xpos[site]
+    rot = unwrapped.data.site_xmat[site].reshape(3, 3)
+    return (np.asarray(points) - origin) @ rot, rot
+
+
+def same_rotation(quat: np.ndarray, rot: np.ndarray) -> bool:
+    mat = np.zeros(9)
+    mujoco.mju_quat2Mat(mat, quat / np.linalg.norm(quat))
+    return bool(np.allclose(mat.reshape(3, 3), rot, atol=1e-6))
+
+
+@pytest.mark.parametrize("placed", [False, True])
+def test_privileged_state_layout(placed):
+    """The 42-d state of SPEC section 5, each block recomputed from MuJoCo's data."""
+    env = make()
+    obs, _ = env.reset(seed=8)
+    unwrapped = env.unwrapped
+    model, data, robot = unwrapped.model, unwrapped.data, unwrapped.robot
+    if placed:
+        place_plug(env)
+        obs = unwrapped.task.privileged_state(model, data)
+    else:
+        for a in np.random.default_rng(0).uniform(-1, 1, (10, 7)):
+            obs, *_ = env.step(a)
+    assert obs.shape == (42,)
+    arm_qpos = [model.joint(n).qposadr[0] for n in robot.arm_joint_names]
+    arm_dof = [model.joint(n).dofadr[0] for n in robot.arm_joint_names]
+    assert np.array_equal(obs[0:6], data.qpos[arm_qpos])
+    assert np.array_equal(obs[7:13], data.qvel[arm_dof])
+    pads = [model.geom(n).id for n in robot.pad_geom_names]
+    gap = np.linalg.norm(data.geom_xpos[pads[0]] - data.geom_xpos[pads[1]])
+    assert obs[6] == pytest.approx(gap - 2 * model.geom_size[pads[0]].min(), abs=1e-3)
+    tcp_site = model.site(robot.tcp_site).id
+    tcp, base_rot = to_base(env, data.site_xpos[tcp_site])
+    assert np.allclose(obs[14:17], tcp, atol=1e-9)
+    assert same_rotation(obs[17:21], base_rot.T @ data.site_xmat[tcp_site].reshape(3, 3))
+    assert tuple(obs[21:23] == 1.0) == pads_touch_plug(env)
+    tip = data.site_xpos[model.site("plug_tip").id]
+    entry, seated, _ = port_frame(env)
+    assert np.allclose(obs[23:26], base_rot.T @ (seated - tip), atol=1e-9)
+    plug_id = unwrapped.task.assembly.plug_id
+    assert np.allclose(obs[26:29], to_base(env, data.xpos[plug_id])[0], atol=1e-9)
+    assert same_rotation(obs[29:33], base_rot.T @ data.xmat[plug_id].reshape(3, 3))
+    assert np.allclose(obs[33:36], to_base(env, entry)[0], atol=1e-9)
+    assert np.allclose(obs[36:39], to_base(env, seated)[0], atol=1e-9)
+    if placed:
+        assert obs[39] == 1.0  # gate open: aligned and past the mouth
+        assert obs[40] == pytest.approx(0.0, abs=1e-9)  # axial error
+        assert obs[41] == pytest.approx(0.0, abs=1e-9)  # lateral error
+        assert np.allclose(obs[23:26], 0.0, atol=1e-9)
+    else:
+        assert obs[39] == 0.0  # a plug on the table is not in the socket
+        assert obs[40] > 0.05
+    env.close()
+
+
+# -- rewards --------------------------------------------------------------------------------
+
+
+def test_seated_reward_and_depth_ratchet():
+    env = make()
+    env.reset(seed=9)
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    zero = np.zeros(7)
+    place_plug(env, back=task.connector.cavity_depth / 2)  # half way in
+    terms = task.reward_terms(model, data, zero)
+    assert terms["seated"] == 0.0
+    assert terms["insert_depth"] == pytest.approx(0.5)
+    assert task.reward_terms(model, data, zero)["insert_depth"] == 0.0  # no gain: no reward
+    place_plug(env)
+    terms = task.reward_terms(model, data, zero)
+    assert terms["seated"] == 1.0
+    assert terms["insert_depth"] == pytest.approx(0.5)  # only the new half
+    place_plug(env, back=0.01)  # pulled back: the high-water mark stays
+    assert task.reward_terms(model, data, zero)["insert_depth"] == 0.0
+    place_plug(env)
+    assert task.reward_terms(model, data, zero)["insert_depth"] == 0.0
+    env.close()
+
+
+def test_snapshot_keeps_the_depth_high_water_mark():
+    env = make()
+    env.reset(seed=13)
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    place_plug(env, back=task.connector.cavity_depth / 2)
+    task.reward_terms(model, data, np.zeros(7))  # high-water mark: half way
+    snapshot = unwrapped.get_state()
+    place_plug(env)
+    assert task.reward_terms(model, data, np.zeros(7))["insert_depth"] == pytest.approx(0.5)
+    unwrapped.set_state(snapshot)
+    place_plug(env)
+    assert task.reward_terms(model, data, np.zeros(7))["insert_depth"] == pytest.approx(0.5)
+    env.close()
+
+
+def test_depth_only_counts_with_the_roll_aligned():
+    env = make(connector="ethernet")
+    env.reset(seed=10)
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    place_plug(env, roll=ins.ROLL_GATE + math.radians(5.0))
+    assert task.reward_terms(model, data, np.zeros(7))["insert_depth"] == 0.0
+    place_plug(env, roll=ins.ROLL_GATE - math.radians(5.0))
+    assert task.reward_terms(model, data, np.zeros(7))["insert_depth"] == pytest.approx(1.0)
+    env.close()
+
+
+def test_reset_clears_the_depth_high_water_mark():
+    env = make()
+    env.reset(seed=11)
+    unwrapped = env.unwrapped
+    place_plug(env)
+    unwrapped.task.reward_terms(unwrapped.model, unwrapped.data, np.zeros(7))
+    env.reset(seed=11)
+    place_plug(env)
+    terms = unwrapped.task.reward_terms(unwrapped.model, unwrapped.data, np.zeros(7))
+    assert terms["insert_depth"] == pytest.approx(1.0)
+    env.close()
+
+
+def test_reward_terms_use_spec_weights_and_penalise_actions():
+    env = make()
+    weights = env.unwrapped.task.weights
+    spec = {
+        "reach": 15.0,
+        "grasp": 25.0,
+        "bring": 40.0,
+        "align": 20.0,
+        "insert_depth": 6000.0,
+        "port_orientation": 10.0,
+        "roll": 10.0,
+        "ee_orientation": 10.0,
+        "seated": 1000.0,
+    }
+    for key, value in spec.items():
+        assert weights[key] == value, key
+    assert weights["action"] < 0.0 and weights["collision"] < 0.0
+    env.reset(seed=12)
+    for a in np.random.default_rng(1).uniform(-2.0, 2.0, (10, 7)):
+        _, _, _, _, info = env.step(a)
+        expected = weights["action"] * float(np.sum(np.clip(a, -1.0, 1.0) ** 2))
+        assert info["reward/action"] == pytest.approx(expected, rel=1e-12)
+    env.close()
+
+
+def test_custom_weights_and_unknown_term():
+    env = make(weights={"seated": 5.0})
+    assert env.unwrapped.task.weights["seated"] == 5.0
+    env.close()
+    with pytest.raises(ValueError, match="reach"):
+        make(weights={"not_a_term": 1.0})
+
+
+# -- 6. insertion keyword arguments ---------------------------------------------------------
+
+
+def test_connector_and_clearance_arguments():
+    env = make(connector="cylinder", clearance=0.001)
+    connector = env.unwrapped.task.connector
+    assert connector.name == "cylinder" and connector.clearance == 0.001
+    env.close()
+    with pytest.raises(ValueError) as err:
+        make(connector="hdmi")
+    for name in CONNECTORS.names():
+        assert name in str(err.value)
+    for bad in (-0.001, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="clearance"):
+            make(clearance=bad)
