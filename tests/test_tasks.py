@@ -100,3 +100,15 @@ def test_seating_success_is_eighty_percent_inside(channel, wire):
         info = place_polyline(env, seating_polyline(task, inside))
         assert info["fraction_inside"] == pytest.approx(fraction, abs=0.04), channel
         assert info["success"] is success
+
+
+@pytest.mark.parametrize("task", ["insertion", "routing", "seating"])
+def test_rod_does_not_keep_spinning_about_its_axis(task):
+    """Both end attachments leave the rod's roll free; its twist joints must still come to rest
+    (undamped, a knock at reset kept them spinning at ~30 rad/s)."""
+    env = wirecraft.make(task, wire="rod")
+    env.reset(seed=0)
+    model, data = env.unwrapped.model, env.unwrapped.data
+    twist = [model.jnt_dofadr[j] for j in range(model.njnt) if "twist" in model.joint(j).name]
+    assert len(twist) == 40
+    assert np.abs(data.qvel[twist]).max() < 0.5

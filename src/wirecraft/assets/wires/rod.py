@@ -23,6 +23,9 @@ from wirecraft.assets.wires.base import (
 )
 
 
+TWIST_DAMPING = 1e-7  # N m s / rad
+
+
 @WIRE_MODELS.register("rod")
 class RodWire(WireHandle):
     model = "rod"
@@ -68,6 +71,12 @@ class RodWire(WireHandle):
         # flexcomp gives every vertex mass/n; n/(n-1) makes the interior vertices carry one edge
         # of wire each, so the distributed weight per length is density * area.
         self._add_flexcomp(spec, xml)
+        # Both end attachments leave the wire's roll about its own axis free, and nothing damps
+        # that rigid spin: a knock at reset kept it spinning at ~30 rad/s forever.  A tiny
+        # damping on the twist joints (time constant ~10 ms at their ~1e-9 kg m^2) stops it.
+        for joint in spec.joints:
+            if joint.name.startswith(f"{self.flex_name}_twist"):
+                joint.damping = (TWIST_DAMPING, 0.0, 0.0)
 
     def _end_vertices(self, end: str) -> list[int]:
         last = self.config.segments
