@@ -548,3 +548,19 @@ def test_render_none_returns_none():
     env.reset(seed=0)
     assert env.unwrapped.render() is None
     env.close()
+
+
+def test_dict_observation_carries_the_sensors():
+    """Image modes also observe fingertip contact, grasp and fixture force, the wrist wrench and
+    the instruction; the wrist force at rest is the gripper's weight."""
+    env = wirecraft.make("insertion", obs_mode="rgb", image_size=32)
+    obs, info = env.reset(seed=0)
+    assert obs["instruction"] == info["instruction"]
+    assert obs["fingertip_contact"].tolist() == [0.0, 0.0]  # nothing held yet
+    assert obs["grasp_force"][0] == 0.0
+    model = env.unwrapped.model
+    hand = model.body(env.unwrapped.robot.hand_body).id
+    carried = model.body_subtreemass[hand] * 9.81
+    force = obs["wrist_wrench"][:3]
+    assert np.linalg.norm(force) == pytest.approx(carried, rel=0.05)
+    assert env.observation_space.contains(obs)

@@ -70,6 +70,16 @@ def contact_normal_force(model, data, a: Contacts, b: Contacts | None) -> float:
     return total
 
 
+def peak_contact_force(model, data, a: Contacts, b: Contacts | None = None) -> float:
+    """Largest single contact normal force (N) between set ``a`` and set ``b`` (None: anything)."""
+    wrench = np.zeros(6)
+    peak = 0.0
+    for i in _between(data, a, b):
+        mujoco.mj_contactForce(model, data, int(i), wrench)
+        peak = max(peak, abs(wrench[0]))
+    return peak
+
+
 def touching(model, data, a: Contacts, b: Contacts | None) -> bool:
     del model
     return bool(_between(data, a, b).size)

@@ -12,6 +12,7 @@ observations never contain NaN.
 from __future__ import annotations
 
 import copy
+import string
 from typing import Any
 
 import gymnasium as gym
@@ -36,6 +37,18 @@ MAX_LINEAR_SPEED = 20.0  # m/s
 MAX_ANGULAR_SPEED = 2000.0  # rad/s
 STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 RESET_ATTEMPTS = 3
+INSTRUCTION_LENGTH = 200  # characters
+
+
+def _add_wrist_sensor(spec: mujoco.MjSpec, hand_body: str) -> None:
+    """A force/torque sensor where the gripper meets the arm (what the hand carries, in the
+    hand frame: its own weight included, as on a real wrist sensor)."""
+    spec.body(hand_body).add_site(name="wrist_ft", size=(0.005, 0, 0))
+    for name, kind in (
+        ("wrist_force", mujoco.mjtSensor.mjSENS_FORCE),
+        ("wrist_torque", mujoco.mjtSensor.mjSENS_TORQUE),
+    ):
+        spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="wrist_ft")
 
 
 def _speed_limits(model: mujoco.MjModel) -> np.ndarray:
@@ -86,6 +99,7 @@ class WireCraftEnv(gym.Env):
         spec = new_spec(f"{task}_{robot}_{wire}", timestep=TIMESTEP)
         add_table(spec)
         self.robot = add_robot(spec, robot)
+        _add_wrist_sensor(spec, self.robot.hand_body)
         self.task.build_scene(spec, wire_config or WireConfig(model=wire))
         self.model = compile_spec(spec)
         # MuJoCo would otherwise reset a diverged simulation silently; we detect and report it.
@@ -93,6 +107,7 @@ class WireCraftEnv(gym.Env):
         self.data = mujoco.MjData(self.model)
         self.robot.reset_home(self.model, self.data)  # a valid state before the first reset
         self._speed_limits = _speed_limits(self.model)
+        self._wrench_adr = [self.model.sensor(n).adr[0] for n in ("wrist_force", "wrist_torque")]
         self.task.bind(self.model, self.robot)
         self.controller = make_controller(
             control, self.robot, self.model, ControlConfig(substeps=SUBSTEPS)
@@ -112,10 +127,19 @@ class WireCraftEnv(gym.Env):
         if self.obs_mode == "state":
             return state
         size = self.image_size
+
+        def vector(n):
+            return gym.spaces.Box(-np.inf, np.inf, (n,), np.float64)
+
         spaces = {
             "rgb_side": gym.spaces.Box(0, 255, (size, size, 3), np.uint8),
             "rgb_wrist": gym.spaces.Box(0, 255, (size, size, 3), np.uint8),
-            "proprio": gym.spaces.Box(-np.inf, np.inf, (2 * self.robot.dof + 2,), np.float64),
+            "proprio": vector(2 * self.robot.dof + 2),
+            "fingertip_contact": gym.spaces.Box(0.0, 1.0, (2,), np.float64),
+            "grasp_force": gym.spaces.Box(0.0, np.inf, (1,), np.float64),
+            "fixture_force": gym.spaces.Box(0.0, np.inf, (1,), np.float64),
+            "wrist_wrench": vector(6),
+            "instruction": gym.spaces.Text(INSTRUCTION_LENGTH, charset=string.printable),
         }
         if self.obs_mode == "rgbd":
             spaces["depth_side"] = gym.spaces.Box(0, np.inf, (size, size, 1), np.float32)
@@ -221,7 +245,12 @@ class WireCraftEnv(gym.Env):
         state = self.task.privileged_state(self.model, self.data)
         if self.obs_mode == "state":
             return state
-        obs = {"proprio": self.robot.proprioception(self.model, self.data)}
+        obs = {
+            "proprio": self.robot.proprioception(self.model, self.data),
+            **self.task.sensing(self.model, self.data),
+            "wrist_wrench": self.wrist_wrench(),
+            "instruction": self.task.instruction,
+        }
         depth = self.obs_mode == "rgbd"
         for camera, key in ((self.robot.side_camera, "side"), (self.robot.wrist_camera, "wrist")):
             rgb, dep = self._images(camera, depth)
@@ -284,6 +313,13 @@ class WireCraftEnv(gym.Env):
         self.task.set_state(state["task"])
         self._steps = state["steps"]
         mujoco.mj_forward(self.model, self.data)
+
+    def wrist_wrench(self) -> np.ndarray:
+        """(6,) force (N) and torque (N m) through the wrist, in the hand frame."""
+        force, torque = self._wrench_adr
+        return np.concatenate(
+            [self.data.sensordata[force : force + 3], self.data.sensordata[torque : torque + 3]]
+        )
 
     def wire_points(self) -> np.ndarray:
         """(N, 3) the wire's centre line in world coordinates."""

@@ -27,7 +27,14 @@ import numpy as np
 from wirecraft.assets.robots import RobotHandle
 from wirecraft.assets.wires import WireConfig
 from wirecraft.registry import Registry
-from wirecraft.sensors import Contacts, body_geom_ids, contact_normal_force, geom_ids, touching
+from wirecraft.sensors import (
+    Contacts,
+    body_geom_ids,
+    contact_normal_force,
+    geom_ids,
+    peak_contact_force,
+    touching,
+)
 
 TASKS: Registry[type[Task]] = Registry("task")
 
@@ -116,6 +123,36 @@ class Task(ABC):
 
     def grasp_force(self, model, data, target: Contacts) -> float:
         return sum(contact_normal_force(model, data, pads, target) for pads in self.pads)
+
+    # -- per-step sensing and diagnostics every task reports -----------------------------------
+    held_contacts: Contacts  # what the pads should hold: the plug, or the wire for routing
+    fixture_contacts: Contacts  # the port, the clips or the channel
+
+    def fixture_force(self, model, data) -> float:
+        """Contact normal force (N) between the cable (wire and plug) and the task's fixture:
+        the insertion force of the insertion task."""
+        cable = self.assembly.plug_contacts | self.assembly.wire_contacts
+        return contact_normal_force(model, data, cable, self.fixture_contacts)
+
+    def sensing(self, model, data) -> dict[str, np.ndarray]:
+        """Fingertip contacts (2), grasp force (1) and fixture force (1), as observed."""
+        return {
+            "fingertip_contact": np.array(
+                self.pad_contacts(model, data, self.held_contacts), float
+            ),
+            "grasp_force": np.array([self.grasp_force(model, data, self.held_contacts)]),
+            "fixture_force": np.array([self.fixture_force(model, data)]),
+        }
+
+    def cable_diagnostics(self, model, data) -> dict[str, float]:
+        """Cable health and contact load: minimum bend radius (m), peak wire tension (N), peak
+        single-contact normal force on the cable (N)."""
+        cable = self.assembly.plug_contacts | self.assembly.wire_contacts
+        return {
+            "min_bend_radius": self.assembly.min_bend_radius(model, data),
+            "wire_tension": self.assembly.tension(model, data),
+            "peak_contact_force": peak_contact_force(model, data, cable),
+        }
 
     def gripper_collision(self, model, data) -> bool:
         """Any moving part of the robot, pads included, touching the table."""

@@ -115,6 +115,8 @@ class InsertionTask(Task):
         self.entry_site = model.site("port_entry").id
         self.seated_site = model.site("port_seated").id
         self.port_contacts = body_geom_ids(model, ["port", "port_mount"])
+        self.fixture_contacts = self.port_contacts
+        self.held_contacts = self.assembly.plug_contacts
 
     # -- episode ----------------------------------------------------------------------------
     def initialize_episode(self, model, data, rng) -> None:
@@ -263,6 +265,7 @@ class InsertionTask(Task):
                 model, data, self.assembly.plug_contacts, self.port_contacts
             ),
             "grasp_force": self.grasp_force(model, data, self.assembly.plug_contacts),
+            **self.cable_diagnostics(model, data),
         }
 
     def get_state(self) -> dict:

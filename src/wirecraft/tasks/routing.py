@@ -101,6 +101,8 @@ class RoutingTask(Task):
         self.clip_mocap = [model.body(f"{n}_mount").mocapid[0] for n in self.clip_names]
         self.clip_bodies = [model.body(n).id for n in self.clip_names]
         self.clip_contacts = body_geom_ids(model, self.clip_names)
+        self.fixture_contacts = self.clip_contacts
+        self.held_contacts = self.assembly.wire_contacts
 
     # -- episode ----------------------------------------------------------------------------
     def initialize_episode(self, model, data, rng) -> None:
@@ -200,7 +202,6 @@ class RoutingTask(Task):
         return {
             "success": all(routed),
             "clips_routed": int(sum(routed)),
-            "min_bend_radius": self.assembly.min_bend_radius(model, data),
-            "wire_tension": self.assembly.tension(model, data),
             "grasp_force": self.grasp_force(model, data, self.assembly.wire_contacts),
+            **self.cable_diagnostics(model, data),
         }

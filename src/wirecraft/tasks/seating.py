@@ -89,6 +89,8 @@ class SeatingTask(Task):
             model, [f"channel_seg{i}" for i in range(NUM_SEGMENTS)]
         )
         self.placed = self.channel.placed(self.bends)
+        self.fixture_contacts = self.channel_contacts
+        self.held_contacts = self.assembly.plug_contacts
 
     # -- episode ----------------------------------------------------------------------------
     def sample_bends(self, rng) -> tuple[float, ...]:
@@ -176,9 +178,8 @@ class SeatingTask(Task):
         return {
             "success": fraction >= SUCCESS_FRACTION,
             "fraction_inside": fraction,
-            "min_bend_radius": self.assembly.min_bend_radius(model, data),
-            "wire_tension": self.assembly.tension(model, data),
             "grasp_force": self.grasp_force(model, data, self.assembly.plug_contacts),
+            **self.cable_diagnostics(model, data),
         }
 
     def get_state(self) -> dict:

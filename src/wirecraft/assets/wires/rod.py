@@ -22,7 +22,6 @@ from wirecraft.assets.wires.base import (
     set_slide_bodies,
 )
 
-
 TWIST_DAMPING = 1e-7  # N m s / rad
 
 
