@@ -36,6 +36,9 @@ class FastRenderer:
 
     def __init__(self, model: mujoco.MjModel, height: int = 224, width: int = 224) -> None:
         model.vis.quality.offsamples = 0
+        # What a camera sees: no site markers (TCP, plug tip...), which only help debugging.
+        self._option = mujoco.MjvOption()
+        self._option.sitegroup[:] = 0
         try:
             self._renderer = mujoco.Renderer(model, height=height, width=width)
         except Exception as err:
@@ -46,7 +49,7 @@ class FastRenderer:
             ) from err
 
     def render(self, data: mujoco.MjData, camera: mujoco.MjvCamera | str | int = -1) -> np.ndarray:
-        self._renderer.update_scene(data, camera=camera)
+        self._renderer.update_scene(data, camera=camera, scene_option=self._option)
         scene = self._renderer.scene
         scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
         scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
@@ -56,7 +59,7 @@ class FastRenderer:
         """(H, W) float32 depth in metres from the camera."""
         self._renderer.enable_depth_rendering()
         try:
-            self._renderer.update_scene(data, camera=camera)
+            self._renderer.update_scene(data, camera=camera, scene_option=self._option)
             return self._renderer.render().astype(np.float32)
         finally:
             self._renderer.disable_depth_rendering()

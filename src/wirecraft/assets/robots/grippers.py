@@ -148,14 +148,15 @@ def build_gripper(
     tcp = f"{prefix}tcp"
     hand.add_site(name=tcp, pos=(0.0, 0.0, gripper.tcp_offset), size=(0.004, 0.0, 0.0))
 
-    # Wrist camera: beside the palm on its -x side, looking just past the fingertips.
-    eye = np.array([-px - 0.035, 0.0, 0.5 * pz])
+    # Wrist camera: beside the palm on its -x side, level with the finger roots (higher up, the
+    # palm filled half the image), looking just past the fingertips.
+    eye = np.array([-px - 0.04, 0.0, 2.0 * pz + 0.01])
     camera = f"{prefix}cam_wrist"
     hand.add_camera(
         name=camera,
         pos=eye,
         quat=_look_at_quat(
-            eye, np.array([0.0, 0.0, gripper.tip + 0.03]), np.array([1.0, 0.0, 0.0])
+            eye, np.array([0.0, 0.0, gripper.tip + 0.05]), np.array([1.0, 0.0, 0.0])
         ),
         fovy=75.0,
     )
