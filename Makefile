@@ -48,6 +48,7 @@ test: install sysdeps
 
 bench: install
 	$(VENV)/bin/wirecraft bench --suite wires
+	$(VENV)/bin/wirecraft bench --suite robots
 
 lint: install
 	$(VENV)/bin/ruff check src tests benchmarks

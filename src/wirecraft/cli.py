@@ -149,7 +149,7 @@ def cmd_export_stl(args) -> int:
 
 
 # -- bench --------------------------------------------------------------------------------------
-BENCH_SUITES = ("wires",)
+BENCH_SUITES = ("wires", "robots")
 
 
 def _bench_args(p):
@@ -165,10 +165,14 @@ def cmd_bench(args) -> int:
         raise ValueError(f"unknown suite {args.suite!r}; valid: {', '.join(BENCH_SUITES)}")
     if not args.seconds > 0:
         raise ValueError(f"--seconds must be > 0, got {args.seconds}")
-    from wirecraft.benchmarks import wires
+    from wirecraft.benchmarks import robots, wires
 
-    rows = wires.run(args.seconds, args.wire)
-    wires.print_table(rows)
+    if args.suite == "wires":
+        rows = wires.run(args.seconds, args.wire)
+        wires.print_table(rows)
+    else:
+        rows = robots.run(args.seconds)
+        robots.print_table(rows)
     write_json(args.json, rows)
     return 0
 
