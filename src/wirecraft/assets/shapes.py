@@ -71,6 +71,26 @@ def quat_about(axis: Sequence[float], angle: float) -> Quat:
     return (float(np.cos(angle / 2.0)), *(float(a * s) for a in axis))
 
 
+def to_yawed_frame(points: np.ndarray, pos: Sequence[float], yaw: float) -> np.ndarray:
+    """World points (..., 3) in a frame at ``pos`` turned by ``yaw`` about z: (n, 3)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    d = np.asarray(points, dtype=float).reshape(-1, 3) - np.asarray(pos)
+    return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]])
+
+
+def add_yawed_body(
+    spec: mujoco.MjSpec,
+    name: str,
+    pos: Sequence[float],
+    yaw: float,
+    parent: mujoco.MjsBody | None = None,
+) -> mujoco.MjsBody:
+    """A fixed body at ``pos`` turned by ``yaw`` about z (a fixture standing on the table)."""
+    return (parent or spec.worldbody).add_body(
+        name=name, pos=tuple(pos), quat=quat_about((0.0, 0.0, 1.0), yaw)
+    )
+
+
 def _transform(pos: Vec3, quat: Quat) -> np.ndarray:
     mat = np.eye(4)
     rot = np.zeros(9)
