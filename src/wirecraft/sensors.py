@@ -7,6 +7,7 @@ in newtons, summed over the contacts between two sets of geoms.  Images come fro
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -27,9 +28,21 @@ class Contacts:
     def mask(self, data: mujoco.MjData, side: int) -> np.ndarray:
         """(ncon,) which contacts have this set on ``side`` (0 or 1)."""
         n = data.ncon
-        geom = data.contact.geom[:n, side]
-        flex = data.contact.flex[:n, side]
-        return np.isin(geom, list(self.geoms)) | ((flex >= 0) & np.isin(flex, list(self.flexes)))
+        ngeom = int(data.contact.geom[:n].max(initial=0)) + 1
+        nflex = int(data.contact.flex[:n].max(initial=0)) + 1
+        geom_lut, flex_lut = _lookup(self, ngeom, nflex)
+        # -1 (no geom / no flex) indexes the tables' last entry, which is False.
+        return geom_lut[data.contact.geom[:n, side]] | flex_lut[data.contact.flex[:n, side]]
+
+
+@functools.lru_cache(maxsize=4096)
+def _lookup(contacts: Contacts, ngeom: int, nflex: int) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean tables over geom and flex ids (one spare False entry for id -1)."""
+    geoms = np.zeros(max(ngeom, max(contacts.geoms, default=-1) + 1) + 1, dtype=bool)
+    geoms[list(contacts.geoms)] = True
+    flexes = np.zeros(max(nflex, max(contacts.flexes, default=-1) + 1) + 1, dtype=bool)
+    flexes[list(contacts.flexes)] = True
+    return geoms, flexes
 
 
 EVERYTHING = None  # as the second set: contacts with anything
