@@ -48,4 +48,21 @@ def make(task: str, **kwargs) -> gym.Env:
     return gym.make(_resolve(task), **kwargs)
 
 
-__all__ = ["TASK_IDS", "make"]
+BACKENDS = ("cpu",)
+
+
+def make_vec(task: str, num_envs: int, backend: str = "cpu", threads: int = 0, **kwargs):
+    """``num_envs`` environments of ``task`` whose physics steps on ``threads`` C threads
+    (0: all CPUs) with MuJoCo's batch engine; a gymnasium VectorEnv (SAME_STEP autoreset)."""
+    from wirecraft.envs.vector import WireCraftVectorEnv
+
+    if backend not in BACKENDS:
+        raise ValueError(
+            f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)} "
+            "(the GPU backend, MuJoCo Warp, is not available yet)"
+        )
+    name = next(k for k, v in TASK_IDS.items() if v == _resolve(task))
+    return WireCraftVectorEnv(name, num_envs, threads=threads, **kwargs)
+
+
+__all__ = ["BACKENDS", "TASK_IDS", "make", "make_vec"]

@@ -192,6 +192,15 @@ class WireCraftEnv(gym.Env):
         return True
 
     def step(self, action):
+        before = self.begin_step(action)
+        mujoco.mj_step(self.model, self.data, nstep=SUBSTEPS)
+        return self.finish_step(action, before)
+
+    # The two halves of a step around the physics, so that a vector environment can step the
+    # physics of many environments at once (envs/vector.py).
+    def begin_step(self, action) -> dict:
+        """Validate ``action``, snapshot the state, write the servo targets; returns the
+        snapshot (for a roll-back if the physics diverges)."""
         action = np.asarray(action, dtype=float)
         if action.shape != self.action_space.shape:
             raise ValueError(
@@ -199,19 +208,23 @@ class WireCraftEnv(gym.Env):
             )
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action contains NaN or inf: {action.tolist()}")
-        model, data = self.model, self.data
         before = self.get_state()
-        self.controller.apply(data, action)
-        mujoco.mj_step(model, data, nstep=SUBSTEPS)
+        self.controller.apply(self.data, action)
+        return before
+
+    def finish_step(self, action, before: dict, *, failed: bool = False):
+        """After the physics ran: the step's observation, reward, flags and info.  ``failed``:
+        the physics engine itself reported an error for this environment."""
+        model, data = self.model, self.data
         # mj_step leaves positions and contacts one substep behind qpos: bring them up to date,
         # so observations, rewards and success all describe the same instant.
         mujoco.mj_forward(model, data)
         self._steps += 1
-        if not self._healthy():
+        if failed or not self._healthy():
             self.set_state(before)
             info = {**self._info_without_reward(), "diverged": True}
             return self._observe(), 0.0, False, True, info
-        clipped = np.clip(action, -1.0, 1.0)
+        clipped = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
         terms = self.task.reward_terms(model, data, clipped)
         weighted = {k: self.task.weights[k] * v for k, v in terms.items()}
         reward = float(sum(weighted.values()))
@@ -225,6 +238,24 @@ class WireCraftEnv(gym.Env):
         if self.render_mode == "human":
             self.render()
         return obs, reward, False, truncated, info
+
+    def clone(self) -> WireCraftEnv:
+        """Another environment on the same compiled model: its own MjData, controller, task
+        state and random generator; nothing is rebuilt."""
+        other = copy.copy(self)
+        other.data = mujoco.MjData(self.model)
+        other.robot = copy.copy(self.robot)
+        other.task = copy.copy(self.task)
+        other.controller = make_controller(
+            self.control_name, other.robot, self.model, ControlConfig(substeps=SUBSTEPS)
+        )
+        other.robot.reset_home(self.model, other.data)
+        other._renderer = None
+        other._viewer = None
+        other._np_random = None
+        other._np_random_seed = None
+        other._steps = 0
+        return other
 
     def _info_without_reward(self) -> dict:
         return {

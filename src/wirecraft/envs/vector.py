@@ -1,0 +1,151 @@
+"""Many environments of one task on one compiled model, their physics stepped on C threads.
+
+``WireCraftVectorEnv`` keeps one ``WireCraftEnv`` per environment (clones sharing the model:
+each its own MjData, controller targets, task state and random generator).  A step runs every
+environment's controller, then advances all physics at once with ``mujoco.batch.Batch``
+(bit-identical to a loop of ``mj_step`` at any thread count), then computes each environment's
+observation, reward and info.  Per-environment randomization (poses, port and clip placement,
+channel shape, wire state) is state, so nothing is rebuilt.
+
+Seeds: ``reset(seed=s)`` gives environment i the seed derived from (s, i) alone, so
+environment i sees the same episodes whatever ``num_envs`` and ``threads`` are.
+
+Autoreset: gymnasium's SAME_STEP mode.  An environment whose episode ends (time limit or
+divergence) is reset within the same ``step``; its last observation and info are in
+``infos["final_obs"]`` / ``infos["final_info"]``, masked by ``infos["_final_obs"]``.  A
+diverged environment is rolled back, flagged (``diverged``) and reset while the others go on.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space, create_empty_array
+from mujoco.batch import Batch, SimulationError
+
+from wirecraft import validation
+from wirecraft.envs.env import STATE_SPEC, SUBSTEPS, WireCraftEnv
+
+
+def env_seed(seed: int, index: int) -> int:
+    """The seed of environment ``index`` under vector seed ``seed``: independent of the number
+    of environments."""
+    return int(np.random.SeedSequence([int(seed), int(index)]).generate_state(1)[0])
+
+
+class WireCraftVectorEnv(VectorEnv):
+    def __init__(self, task: str, num_envs: int, *, threads: int = 0, **kwargs) -> None:
+        validation.at_least_int("make_vec", "num_envs", num_envs, 1)
+        validation.at_least_int("make_vec", "threads", threads, 0)
+        if kwargs.get("render_mode") == "human":
+            raise ValueError("make_vec: render_mode='human' is for single environments")
+        first = WireCraftEnv(task, **kwargs)
+        self.envs = [first] + [first.clone() for _ in range(num_envs - 1)]
+        self.model = first.model
+        self.num_envs = num_envs
+        self.threads = threads
+        self.batch = Batch(self.model, num_envs, nthread=threads)
+        self.single_observation_space = first.observation_space
+        self.single_action_space = first.action_space
+        self.observation_space = batch_space(first.observation_space, num_envs)
+        self.action_space = batch_space(first.action_space, num_envs)
+        self.metadata = {**first.metadata, "autoreset_mode": AutoresetMode.SAME_STEP}
+        self.render_mode = first.render_mode
+        self._obs = create_empty_array(self.single_observation_space, num_envs)
+        if isinstance(self._obs, dict):  # text (the instruction) batches as a tuple: fill a list
+            self._obs = {k: list(v) if isinstance(v, tuple) else v for k, v in self._obs.items()}
+
+    # -- gymnasium vector API ---------------------------------------------------------------
+    def reset(self, *, seed=None, options: dict | None = None):
+        mask = np.ones(self.num_envs, bool)
+        if options and "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"], bool)
+            if mask.shape != (self.num_envs,):
+                raise ValueError(f"reset_mask must have shape ({self.num_envs},)")
+        seeds = self._seeds(seed)
+        observations, infos = [], {}
+        for i in np.flatnonzero(mask):
+            obs, info = self.envs[i].reset(seed=seeds[i])
+            observations.append((i, obs))
+            infos = self._add_info(infos, info, i)
+        for i, obs in observations:
+            self._write_obs(i, obs)
+        return self._obs_copy(), infos
+
+    def step(self, actions):
+        actions = np.asarray(actions, dtype=float)
+        if actions.shape != self.action_space.shape:
+            raise ValueError(
+                f"actions must have shape {self.action_space.shape}, got {actions.shape}"
+            )
+        bad = np.flatnonzero(~np.all(np.isfinite(actions), axis=1))
+        if bad.size:
+            raise ValueError(f"actions of environments {bad.tolist()} contain NaN or inf")
+        befores = [env.begin_step(a) for env, a in zip(self.envs, actions, strict=True)]
+        failed = self._step_physics()
+        rewards = np.zeros(self.num_envs)
+        terminations = np.zeros(self.num_envs, bool)
+        truncations = np.zeros(self.num_envs, bool)
+        infos: dict = {}
+        for i, env in enumerate(self.envs):
+            obs, reward, terminated, truncated, info = env.finish_step(
+                actions[i], befores[i], failed=i in failed
+            )
+            if terminated or truncated:
+                # SAME_STEP autoreset: report the final step, start the next episode now.
+                infos = self._add_info(infos, {"final_obs": obs, "final_info": info}, i)
+                obs, reset_info = env.reset()
+                info = {**info, **{f"reset/{k}": v for k, v in reset_info.items()}}
+            self._write_obs(i, obs)
+            rewards[i], terminations[i], truncations[i] = reward, terminated, truncated
+            infos = self._add_info(infos, info, i)
+        return self._obs_copy(), rewards, terminations, truncations, infos
+
+    def close_extras(self, **kwargs) -> None:
+        for env in self.envs:
+            env.close()
+
+    def render(self):
+        return tuple(env.render() for env in self.envs)
+
+    # -- internals --------------------------------------------------------------------------
+    def _seeds(self, seed) -> list[int | None]:
+        if seed is None:
+            return [None] * self.num_envs
+        if isinstance(seed, (int, np.integer)):
+            return [env_seed(seed, i) for i in range(self.num_envs)]
+        seeds = list(seed)
+        if len(seeds) != self.num_envs:
+            raise ValueError(f"reset: {len(seeds)} seeds for {self.num_envs} environments")
+        return seeds
+
+    def _step_physics(self) -> set[int]:
+        """Advance every environment by one control period in the batch; returns the ids for
+        which MuJoCo raised (they kept their state)."""
+        state = self.batch.state
+        for i, env in enumerate(self.envs):
+            mujoco.mj_getState(self.model, env.data, state[i], STATE_SPEC)
+        failed: set[int] = set()
+        try:
+            self.batch.step(nstep=SUBSTEPS)
+        except SimulationError as err:
+            failed = {int(i) for i in err.ids}
+        for i, env in enumerate(self.envs):
+            mujoco.mj_setState(self.model, env.data, state[i], STATE_SPEC)
+        return failed
+
+    def _write_obs(self, index: int, obs) -> None:
+        if isinstance(self._obs, dict):
+            for key, value in obs.items():
+                self._obs[key][index] = value
+        else:
+            self._obs[index] = obs
+
+    def _obs_copy(self):
+        if isinstance(self._obs, dict):
+            return {k: tuple(v) if isinstance(v, list) else v.copy() for k, v in self._obs.items()}
+        return self._obs.copy()
+
+
+__all__ = ["WireCraftVectorEnv", "env_seed"]

@@ -1,0 +1,144 @@
+"""The batched vector environment against the single environment, its own independent truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import wirecraft
+from wirecraft.envs import env_seed
+
+SEED = 7
+
+
+def actions_for(venv, steps, seed=0):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-1, 1, (steps, *venv.action_space.shape))
+
+
+def run(venv, actions):
+    obs, _ = venv.reset(seed=SEED)
+    trace = [obs.copy()]
+    for a in actions:
+        obs, reward, *_ = venv.step(a)
+        trace.append(np.concatenate([obs.ravel(), reward]))
+    return trace
+
+
+@pytest.mark.parametrize("task", ["insertion", "routing"])
+def test_environment_zero_is_the_same_whatever_num_envs_and_threads(task):
+    steps = 25
+    base = actions_for(wirecraft.make_vec(task, 8, threads=2), steps)
+    traces = {}
+    for num_envs, threads in ((1, 1), (8, 1), (8, 2)):
+        venv = wirecraft.make_vec(task, num_envs, threads=threads)
+        obs, _ = venv.reset(seed=SEED)
+        first = [obs[0].copy()]
+        for a in base:
+            obs, reward, *_ = venv.step(a[:num_envs])
+            first.append(np.append(obs[0], reward[0]))
+        traces[(num_envs, threads)] = np.concatenate(first)
+    reference = traces[(1, 1)]
+    for key, trace in traces.items():
+        np.testing.assert_array_equal(trace, reference, err_msg=str(key))
+    # ... and it is the single environment with the derived seed, stepped by mj_step.
+    env = wirecraft.make(task)
+    obs, _ = env.reset(seed=env_seed(SEED, 0))
+    single = [obs]
+    for a in base:
+        obs, reward, *_ = env.step(a[0])
+        single.append(np.append(obs, reward))
+    np.testing.assert_array_equal(np.concatenate(single), reference)
+
+
+def test_a_diverging_environment_leaves_the_others_untouched():
+    steps, victim = 6, 2
+    actions = actions_for(wirecraft.make_vec("insertion", 4, threads=2), steps)
+
+    def trajectories(inject):
+        venv = wirecraft.make_vec("insertion", 4, threads=2)
+        obs, _ = venv.reset(seed=SEED)
+        out, flags = [obs.copy()], []
+        for k, a in enumerate(actions):
+            if inject and k == 3:
+                env = venv.envs[victim]
+                dof = env.task.assembly.plug_dof
+                env.data.qvel[dof : dof + 6] = 1e6
+            obs, reward, terminated, truncated, infos = venv.step(a)
+            out.append(obs.copy())
+            flags.append((truncated.copy(), infos["diverged"].copy()))
+        return np.stack(out), flags
+
+    clean, _ = trajectories(False)
+    hit, flags = trajectories(True)
+    others = [i for i in range(4) if i != victim]
+    np.testing.assert_array_equal(hit[:, others], clean[:, others])
+    truncated, diverged = flags[3]
+    assert diverged[victim] and truncated[victim]
+    assert not diverged[others].any() and not truncated[others].any()
+    assert np.all(np.isfinite(hit))
+
+
+def test_same_step_autoreset_reports_final_obs_and_starts_a_new_episode():
+    venv = wirecraft.make_vec("insertion", 2, threads=1, episode_seconds=5 / 60)
+    env = wirecraft.make("insertion", episode_seconds=5 / 60)
+    actions = actions_for(venv, 5)
+    venv.reset(seed=SEED)
+    obs, _ = env.reset(seed=env_seed(SEED, 1))
+    for k, a in enumerate(actions):
+        vobs, _, _, vtrunc, infos = venv.step(a)
+        obs, _, _, trunc, info = env.step(a[1])
+        if k < 4:
+            assert not vtrunc.any() and "final_obs" not in infos
+            np.testing.assert_array_equal(vobs[1], obs)
+    assert trunc and vtrunc.all()
+    assert infos["_final_obs"].all()
+    np.testing.assert_array_equal(infos["final_obs"][1], obs)
+    assert infos["final_info"]["success"][1] == info["success"]
+    # The returned observation is the next episode's first, from the same seeded stream.
+    fresh, _ = env.reset()
+    np.testing.assert_array_equal(vobs[1], fresh)
+
+
+def test_partial_reset_touches_only_the_masked_environments():
+    venv = wirecraft.make_vec("insertion", 3, threads=1)
+    obs, _ = venv.reset(seed=SEED)
+    obs, *_ = venv.step(actions_for(venv, 1)[0])
+    again, infos = venv.reset(seed=SEED, options={"reset_mask": np.array([False, True, False])})
+    first, _ = wirecraft.make_vec("insertion", 3, threads=1).reset(seed=SEED)
+    np.testing.assert_array_equal(again[1], first[1])
+    np.testing.assert_array_equal(again[[0, 2]], obs[[0, 2]])
+    assert infos["_success"].tolist() == [False, True, False]
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"num_envs": 0}, "num_envs"),
+        ({"threads": -1}, "threads"),
+        ({"backend": "gpu"}, "backend"),
+        ({"num_envs": 2.5}, "num_envs"),
+    ],
+)
+def test_bad_arguments(kwargs, match):
+    args = {"num_envs": 2, **kwargs}
+    with pytest.raises(ValueError, match=match):
+        wirecraft.make_vec("insertion", **args)
+
+
+def test_nan_action_in_one_environment_is_refused_before_anything_moves():
+    venv = wirecraft.make_vec("insertion", 3, threads=1)
+    venv.reset(seed=SEED)
+    time_before = [env.data.time for env in venv.envs]
+    actions = np.zeros(venv.action_space.shape)
+    actions[1, 0] = np.nan
+    with pytest.raises(ValueError, match=r"\[1\]"):
+        venv.step(actions)
+    assert [env.data.time for env in venv.envs] == time_before
+
+
+def test_image_observations_batch():
+    venv = wirecraft.make_vec("seating", 2, threads=1, obs_mode="rgb", image_size=32)
+    obs, _ = venv.reset(seed=SEED)
+    assert obs["rgb_side"].shape == (2, 32, 32, 3)
+    assert venv.observation_space.contains(obs)
