@@ -120,3 +120,52 @@ def test_bench_json_rows(tmp_path):
 def test_bench_unknown_wire_is_a_clear_error(capsys):
     assert main(["bench", "--wire", "spaghetti", "--seconds", "0.05"]) == 2
     assert "unknown wire model 'spaghetti'" in capsys.readouterr().err
+
+
+def test_bench_envs_rows_csv_and_plot(tmp_path):
+    path = tmp_path / "rows.json"
+    assert (
+        main(
+            [
+                "bench",
+                "--suite",
+                "envs",
+                "--num-envs",
+                "2",
+                "--threads",
+                "1",
+                "--seconds",
+                "0.2",
+                "--warmup",
+                "0.05",
+                "--out",
+                str(tmp_path),
+                "--json",
+                str(path),
+            ]
+        )
+        == 0
+    )
+    (row,) = json.loads(path.read_text())
+    for key in (
+        "task",
+        "wire",
+        "num_envs",
+        "threads",
+        "control_steps_per_s",
+        "physics_steps_per_s",
+        "realtime_factor",
+        "overhead_ratio",
+    ):
+        assert key in row
+    assert row["physics_steps_per_s"] == pytest.approx(8 * row["control_steps_per_s"], rel=1e-3)
+    assert row["overhead_ratio"] > 1.0  # the environment does more than the raw physics
+    assert (tmp_path / "bench_envs.csv").read_text().startswith("task,wire,num_envs")
+    assert np.asarray(Image.open(tmp_path / "bench_envs.png")).std() > 10
+
+
+def test_bench_envs_bad_lists_are_clear_errors(capsys):
+    assert main(["bench", "--suite", "envs", "--num-envs", "0"]) == 2
+    assert "--num-envs" in capsys.readouterr().err
+    assert main(["bench", "--suite", "envs", "--task", "knitting"]) == 2
+    assert "unknown task 'knitting'" in capsys.readouterr().err

@@ -148,14 +148,33 @@ def cmd_export_stl(args) -> int:
     return 0
 
 
+def _int_list(flag: str, text: str) -> list[int]:
+    try:
+        values = [int(v) for v in str(text).split(",") if v.strip()]
+    except ValueError:
+        raise ValueError(f"{flag} must be comma-separated integers, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise ValueError(f"{flag} must be integers >= 1, got {text!r}")
+    return values
+
+
 # -- bench --------------------------------------------------------------------------------------
-BENCH_SUITES = ("wires", "robots")
+BENCH_SUITES = ("wires", "robots", "envs")
 
 
 def _bench_args(p):
     p.add_argument("--suite", default="wires", help=f"one of: {', '.join(BENCH_SUITES)}")
     p.add_argument("--seconds", type=float, default=5.0, help="simulated seconds timed per row")
     p.add_argument("--wire", nargs="*", default=None, help="wire models (default: all)")
+    p.add_argument("--task", nargs="*", default=None, help="envs suite: tasks (default: insertion)")
+    p.add_argument(
+        "--num-envs",
+        default=None,
+        help="envs suite: comma-separated counts (default: 1,4,16,64,256)",
+    )
+    p.add_argument("--threads", default="1,2", help="envs suite: comma-separated thread counts")
+    p.add_argument("--warmup", type=float, default=1.0, help="envs suite: warm-up seconds")
+    p.add_argument("--out", default="out/bench", help="envs suite: folder for CSV and PNG")
     p.add_argument("--json", metavar="PATH", help="write the rows as JSON")
 
 
@@ -170,9 +189,28 @@ def cmd_bench(args) -> int:
     if args.suite == "wires":
         rows = wires.run(args.seconds, args.wire)
         wires.print_table(rows)
-    else:
+    elif args.suite == "robots":
         rows = robots.run(args.seconds)
         robots.print_table(rows)
+    else:
+        from wirecraft import TASK_IDS
+        from wirecraft.assets.wires import WIRE_MODELS
+        from wirecraft.benchmarks import envs
+
+        tasks = args.task or ["insertion"]
+        for task in tasks:
+            if task not in TASK_IDS:
+                raise ValueError(f"unknown task {task!r}; valid: {', '.join(TASK_IDS)}")
+        wire_models = args.wire or ["articulated"]
+        for wire in wire_models:
+            WIRE_MODELS.get(wire)
+        counts = _int_list("--num-envs", args.num_envs or "1,4,16,64,256")
+        threads = _int_list("--threads", args.threads)
+        rows = envs.run(tasks, wire_models, counts, threads, args.seconds, args.warmup)
+        envs.print_table(rows)
+        envs.write_csv(rows, Path(args.out) / "bench_envs.csv")
+        envs.plot(rows, Path(args.out) / "bench_envs.png")
+        print(f"wrote {args.out}/bench_envs.csv and {args.out}/bench_envs.png")
     write_json(args.json, rows)
     return 0
 

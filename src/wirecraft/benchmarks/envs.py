@@ -1,0 +1,154 @@
+"""Vector-environment throughput against the raw batched physics of the same model.
+
+For each (task, wire, num_envs, threads): reset, warm up, then time ``step`` over a measured
+window.  The raw figure steps the same model and substeps with ``mujoco.batch`` alone (no
+Python environment code, controls held), from the same states; ``overhead_ratio`` is the
+environment's step time over the raw one.  Rows as SPEC section 1; CSV, JSON and a PNG plot.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+
+from wirecraft.envs.env import CONTROL_HZ, SUBSTEPS
+
+NUM_ENVS = (1, 4, 16, 64, 256, 1024)
+THREADS = (1, 2)
+FIELDS = (
+    "task",
+    "wire",
+    "num_envs",
+    "threads",
+    "control_steps_per_s",
+    "physics_steps_per_s",
+    "realtime_factor",
+    "raw_physics_steps_per_s",
+    "overhead_ratio",
+)
+
+
+def _timed(call, seconds: float, warmup: float) -> float:
+    """Seconds per call, over at least ``seconds`` after ``warmup`` seconds of calls."""
+    end = time.perf_counter() + warmup
+    while time.perf_counter() < end:
+        call()
+    calls, start = 0, time.perf_counter()
+    while True:
+        call()
+        calls += 1
+        elapsed = time.perf_counter() - start
+        if elapsed >= seconds:
+            return elapsed / calls
+
+
+def measure(
+    task: str, wire: str, num_envs: int, threads: int, seconds: float, warmup: float
+) -> dict:
+    import mujoco
+
+    import wirecraft
+    from wirecraft.envs.env import STATE_SPEC
+
+    venv = wirecraft.make_vec(task, num_envs, threads=threads, wire=wire)
+    venv.reset(seed=0)
+    rng = np.random.default_rng(0)
+
+    def env_step():
+        venv.step(rng.uniform(-0.3, 0.3, venv.action_space.shape))
+
+    env_time = _timed(env_step, seconds, warmup)
+    # Raw physics: the same model, states and substeps, stepped by the batch alone.
+    batch = venv.batch
+    for i, env in enumerate(venv.envs):
+        mujoco.mj_getState(venv.model, env.data, batch.state[i], STATE_SPEC)
+    raw_time = _timed(lambda: batch.step(nstep=SUBSTEPS), seconds, warmup)
+    venv.close()
+    control = num_envs / env_time
+    return {
+        "task": task,
+        "wire": wire,
+        "num_envs": num_envs,
+        "threads": threads,
+        "control_steps_per_s": round(control, 1),
+        "physics_steps_per_s": round(control * SUBSTEPS, 1),
+        "realtime_factor": round(control / CONTROL_HZ, 2),
+        "raw_physics_steps_per_s": round(num_envs * SUBSTEPS / raw_time, 1),
+        "overhead_ratio": round(env_time / raw_time, 3),
+    }
+
+
+def run(tasks, wires, num_envs, threads, seconds: float = 5.0, warmup: float = 1.0):
+    from tqdm import tqdm
+
+    cases = [(t, w, n, k) for t in tasks for w in wires for n in num_envs for k in threads]
+    return [
+        measure(*case, seconds, warmup) for case in tqdm(cases, desc="bench envs", unit="config")
+    ]
+
+
+def print_table(rows: list[dict]) -> None:
+    print(
+        f"{'task':10} {'wire':12} {'envs':>5} {'thr':>3} {'control/s':>10} {'physics/s':>11}"
+        f" {'x real':>8} {'raw phys/s':>11} {'env/raw':>8}"
+    )
+    for r in rows:
+        print(
+            f"{r['task']:10} {r['wire']:12} {r['num_envs']:>5} {r['threads']:>3} "
+            f"{r['control_steps_per_s']:>10.0f} {r['physics_steps_per_s']:>11.0f} "
+            f"{r['realtime_factor']:>8.1f} {r['raw_physics_steps_per_s']:>11.0f} "
+            f"{r['overhead_ratio']:>8.2f}"
+        )
+
+
+def write_csv(rows: list[dict], path: str | Path) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=FIELDS)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def plot(rows: list[dict], path: str | Path) -> None:
+    """Control steps/s against num_envs, one curve per (task, wire, threads), log-log."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, ax_ratio) = plt.subplots(1, 2, figsize=(11, 4.2))
+    keys = sorted({(r["task"], r["wire"], r["threads"]) for r in rows})
+    for task, wire, threads in keys:
+        sel = sorted(
+            (r for r in rows if (r["task"], r["wire"], r["threads"]) == (task, wire, threads)),
+            key=lambda r: r["num_envs"],
+        )
+        n = [r["num_envs"] for r in sel]
+        label = f"{task}/{wire}, {threads} thread{'s' * (threads > 1)}"
+        ax.plot(n, [r["control_steps_per_s"] for r in sel], "o-", label=label)
+        ax_ratio.plot(n, [r["overhead_ratio"] for r in sel], "o-", label=label)
+    ax.set(
+        xscale="log",
+        yscale="log",
+        xlabel="parallel environments",
+        ylabel="control steps / s (all environments)",
+        title="Throughput",
+    )
+    ax_ratio.axhline(1.1, color="grey", ls="--", lw=1, label="target 1.10")
+    ax_ratio.set(
+        xscale="log",
+        xlabel="parallel environments",
+        ylabel="env step time / raw physics time",
+        title="Environment overhead",
+    )
+    ax.legend(fontsize=7)
+    ax_ratio.legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
