@@ -64,13 +64,31 @@ def flex_ids(model: mujoco.MjModel, names: Iterable[str]) -> Contacts:
     )
 
 
+_BETWEEN_CACHE: dict = {}
+_BETWEEN_CACHE_SIZE = 4096
+
+
 def _between(data: mujoco.MjData, a: Contacts, b: Contacts | None) -> np.ndarray:
-    """Indices of contacts between set ``a`` and set ``b`` (None: anything)."""
+    """Indices of contacts between set ``a`` and set ``b`` (None: anything).
+
+    The answer depends only on the contacts' geom and flex ids, so it is memoized on them: one
+    step asks the same question many times (observation, reward, success).
+    """
+    n = data.ncon
+    geom, flex = data.contact.geom[:n], data.contact.flex[:n]
+    key = (a, b, geom.tobytes(), flex.tobytes())
+    hit = _BETWEEN_CACHE.get(key)
+    if hit is not None:
+        return hit
     if b is None:
-        hit = a.mask(data, 0) | a.mask(data, 1)
+        mask = a.mask(data, 0) | a.mask(data, 1)
     else:
-        hit = (a.mask(data, 0) & b.mask(data, 1)) | (a.mask(data, 1) & b.mask(data, 0))
-    return np.flatnonzero(hit)
+        mask = (a.mask(data, 0) & b.mask(data, 1)) | (a.mask(data, 1) & b.mask(data, 0))
+    hit = np.flatnonzero(mask)
+    if len(_BETWEEN_CACHE) >= _BETWEEN_CACHE_SIZE:
+        _BETWEEN_CACHE.clear()
+    _BETWEEN_CACHE[key] = hit
+    return hit
 
 
 def contact_normal_force(model, data, a: Contacts, b: Contacts | None) -> float:
