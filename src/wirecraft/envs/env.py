@@ -246,6 +246,7 @@ class WireCraftEnv(gym.Env):
         other.data = mujoco.MjData(self.model)
         other.robot = copy.copy(self.robot)
         other.task = copy.copy(self.task)
+        other.task.__dict__.pop("_memo", None)  # per-environment caches are not shared
         other.controller = make_controller(
             self.control_name, other.robot, self.model, ControlConfig(substeps=SUBSTEPS)
         )

@@ -147,6 +147,9 @@ class InsertionTask(Task):
     def seating_errors(self, data) -> dict[str, float]:
         """Axial error (m to go along the socket axis), lateral error (m off the axis), depth
         (m past the mouth), roll error (rad, modulo the connector's symmetry) and axis error."""
+        return self.memo(data, "seating_errors", lambda: self._seating_errors(data))
+
+    def _seating_errors(self, data) -> dict[str, float]:
         entry, port_rot = self._port_frame(data)
         axis = port_rot[:, 0]
         tip = data.site_xpos[self.assembly.tip_site]
