@@ -8,7 +8,7 @@ features inside the socket.
 
 from __future__ import annotations
 
-from wirecraft.assets.connectors.base import Connector
+from wirecraft.assets.connectors.base import TAIL_HALF_LENGTH, Connector
 
 # @CONNECTORS.register("my_connector")   # uncomment in your copy
 
@@ -17,7 +17,7 @@ class TemplateConnector(Connector):
     symmetry = 2
     description = "what it looks like, main dimensions"
     shell_length = 0.015  # m, insertable length
-    tail_half = (0.008, 0.007, 0.005)  # m, half extents of the part the gripper holds
+    tail_half = (TAIL_HALF_LENGTH, 0.007, 0.005)  # m, half extents of the part the gripper holds
     width, height = 0.010, 0.005
 
     def shell_rects(self):

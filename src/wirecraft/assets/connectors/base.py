@@ -34,6 +34,9 @@ from wirecraft.registry import Registry
 CONNECTORS: Registry[type[Connector]] = Registry("connector")
 
 KEY_MARGIN = 0.001  # m by which a key exceeds the socket's rattle slack 2c
+# The gripped tail is 26 mm long: a 2F-85's 22 mm pads centred on it clear the shell, which
+# stands 2 mm out of a seated socket, with 2 mm to spare (a 16 mm tail put the pads in the port).
+TAIL_HALF_LENGTH = 0.013
 WALL = 0.004  # m, socket wall and back-stop thickness
 PLUG_RGBA = (0.15, 0.15, 0.18, 1.0)
 SHELL_RGBA = (0.75, 0.75, 0.78, 1.0)

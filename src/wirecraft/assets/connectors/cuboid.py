@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from wirecraft.assets.connectors.base import CONNECTORS, Connector
+from wirecraft.assets.connectors.base import CONNECTORS, TAIL_HALF_LENGTH, Connector
 
 
 @CONNECTORS.register("cuboid")
@@ -11,7 +11,7 @@ class CuboidConnector(Connector):
     symmetry = 2
     description = "rectangular peg, 12 x 8 mm"
     shell_length = 0.020
-    tail_half = (0.008, 0.0075, 0.0055)
+    tail_half = (TAIL_HALF_LENGTH, 0.0075, 0.0055)
     width, height = 0.012, 0.008
 
     def shell_rects(self):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wirecraft.assets.connectors.base import CONNECTORS, WALL, Connector
+from wirecraft.assets.connectors.base import CONNECTORS, TAIL_HALF_LENGTH, WALL, Connector
 from wirecraft.assets.shapes import Box, Cylinder, Shape, quat_about
 
 ALONG_X = quat_about((0.0, 1.0, 0.0), np.pi / 2)  # turns a cylinder's z axis onto x
@@ -17,7 +17,7 @@ class CylinderConnector(Connector):
     symmetry = 0  # continuous
     description = "round peg, 10 mm diameter"
     shell_length = 0.020
-    tail_half = (0.008, 0.0065, 0.0065)
+    tail_half = (TAIL_HALF_LENGTH, 0.0065, 0.0065)
     radius = 0.005
 
     def shell_rects(self):

@@ -10,7 +10,13 @@ from __future__ import annotations
 
 import math
 
-from wirecraft.assets.connectors.base import CONNECTORS, KEY_MARGIN, WALL, Connector
+from wirecraft.assets.connectors.base import (
+    CONNECTORS,
+    KEY_MARGIN,
+    TAIL_HALF_LENGTH,
+    WALL,
+    Connector,
+)
 from wirecraft.assets.shapes import Box, Prism, Shape
 
 
@@ -20,7 +26,7 @@ class DisplayPortConnector(Connector):
     symmetry = 1
     description = "DisplayPort-like shell, 16 x 4.8 mm, chamfered corner (most alignment-sensitive)"
     shell_length = 0.015
-    tail_half = (0.008, 0.0095, 0.0040)
+    tail_half = (TAIL_HALF_LENGTH, 0.0095, 0.0040)
     width, height, chamfer = 0.016, 0.0048, 0.0025
     rail_width = 0.003
 

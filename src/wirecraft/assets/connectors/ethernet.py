@@ -7,7 +7,7 @@ height is max(2 mm, 2c + KEY_MARGIN).
 
 from __future__ import annotations
 
-from wirecraft.assets.connectors.base import CONNECTORS, KEY_MARGIN, Connector
+from wirecraft.assets.connectors.base import CONNECTORS, KEY_MARGIN, TAIL_HALF_LENGTH, Connector
 
 
 @CONNECTORS.register("ethernet")
@@ -16,7 +16,7 @@ class EthernetConnector(Connector):
     symmetry = 1
     description = "RJ45-like, 11.7 x 6 mm body with a latch tab on top (about 8 mm high)"
     shell_length = 0.018
-    tail_half = (0.008, 0.0070, 0.0055)
+    tail_half = (TAIL_HALF_LENGTH, 0.0070, 0.0055)
     width, height = 0.0117, 0.006
     latch_width, latch_nominal_height = 0.004, 0.002
 

@@ -6,7 +6,7 @@ benchmark's clearances a thin tongue would not survive the rattle slack (see bas
 
 from __future__ import annotations
 
-from wirecraft.assets.connectors.base import CONNECTORS, Connector
+from wirecraft.assets.connectors.base import CONNECTORS, TAIL_HALF_LENGTH, Connector
 
 
 @CONNECTORS.register("usb_a")
@@ -15,7 +15,7 @@ class UsbAConnector(Connector):
     symmetry = 2
     description = "USB-A-like shell, 12 x 4.5 mm"
     shell_length = 0.014
-    tail_half = (0.008, 0.0080, 0.0040)
+    tail_half = (TAIL_HALF_LENGTH, 0.0080, 0.0040)
     width, height = 0.012, 0.0045
 
     def shell_rects(self):
