@@ -231,10 +231,13 @@ def cmd_demo(args) -> int:
     if not args.seconds > 0:
         raise ValueError(f"--seconds must be > 0, got {args.seconds}")
     tasks = run_task_demo(args.out, seconds=args.seconds)
-    print(f"{'task':10s} {'steps/s':>8s} {'return':>9s} {'success':>8s} {'diverged':>8s}  goal")
+    print(
+        f"{'task':10s} {'policy':7s} {'steps/s':>8s} {'return':>9s} {'success':>8s} "
+        f"{'diverged':>8s}  goal"
+    )
     for r in tasks:
         print(
-            f"{r['task']:10s} {r['control_steps_per_s']:>8} {r['return']:>9.1f} "
+            f"{r['task']:10s} {r['policy']:7s} {r['control_steps_per_s']:>8} {r['return']:>9.1f} "
             f"{str(r['success']):>8s} {str(r['diverged']):>8s}  {r['instruction']}"
         )
     rows = run_demo(args.out, seconds=args.seconds)

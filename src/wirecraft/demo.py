@@ -1,9 +1,9 @@
 """``wirecraft demo``: the main job on a CPU, end to end, in about a minute.
 
-1. Each task family (insertion, routing, seating; UR5, capsule-chain wire) is reset and driven
+1. Each task family (insertion, routing, seating; UR5, capsule-chain wire) is reset and
+   driven by its scripted expert for a whole episode where one exists (insertion so far), else
    for a few seconds by a seeded random policy: the table reports control steps per second,
-   reward and success, and ``tasks.png`` shows side views over time.  (Scripted experts that
-   solve the tasks replace the random policy in a later release.)
+   reward and success, and ``tasks.png`` shows side views over time.
 2. Each wire model, with an Ethernet plug on its end, is dropped into a channel on the task
    board: physics speed, divergence and how much of the wire came to rest in the channel
    (``wires.png``).
@@ -49,31 +49,49 @@ def build_drop_scene(wire_model: str):
     return spec, wire, channel
 
 
+# (task, keyword arguments, policy): "expert" runs the task's scripted expert for a whole
+# episode; "random" a seeded random policy for ``seconds``.
 DEMO_TASKS = (
-    ("insertion", {"connector": "ethernet"}),
-    ("routing", {"num_clips": 2}),
-    ("seating", {"channel": "curved"}),
+    ("insertion", {"connector": "ethernet"}, "expert"),
+    ("routing", {"num_clips": 2}, "random"),
+    ("seating", {"channel": "curved"}, "random"),
 )
 
 
+def _policy(kind: str, env):
+    if kind == "expert":
+        from wirecraft.experts import InsertionExpert
+        from wirecraft.experts.insertion import InsertionExpertConfig
+
+        expert = InsertionExpert(env, InsertionExpertConfig(release=False))
+        expert.reset()
+        return lambda obs: expert.act(obs)[0]
+    return lambda obs: env.action_space.sample()
+
+
 def run_task_demo(out_dir: str | Path, seconds: float = 2.0, seed: int = 0) -> list[dict]:
-    """Random-policy rollouts of every task family; returns one summary row per task."""
+    """A rollout of every task family (scripted expert where there is one, else a random
+    policy); returns one summary row per task."""
     import wirecraft
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows, strips = [], []
-    for task, kwargs in tqdm(DEMO_TASKS, desc="demo tasks", unit="task"):
+    for task, kwargs, policy_kind in tqdm(DEMO_TASKS, desc="demo tasks", unit="task"):
         env = wirecraft.make(task, render_mode="rgb_array", image_size=240, **kwargs)
         env.action_space.seed(seed)
-        _, info = env.reset(seed=seed)
-        steps = max(1, int(seconds * wirecraft.envs.CONTROL_HZ))
+        obs, info = env.reset(seed=seed)
+        policy = _policy(policy_kind, env)
+        if policy_kind == "expert":
+            steps = env.unwrapped.max_steps
+        else:
+            steps = max(1, int(seconds * wirecraft.envs.CONTROL_HZ))
         shots = set(np.linspace(0, steps - 1, 4).round().astype(int).tolist())
         images, total, stepping = [env.render()], 0.0, 0.0
         for step in range(steps):
-            action = env.action_space.sample()
+            action = policy(obs)
             tic = time.perf_counter()
-            _, reward, _, truncated, info = env.step(action)
+            obs, reward, _, truncated, info = env.step(action)
             stepping += time.perf_counter() - tic
             total += reward
             if step in shots:
@@ -84,6 +102,7 @@ def run_task_demo(out_dir: str | Path, seconds: float = 2.0, seed: int = 0) -> l
             {
                 "task": task,
                 **kwargs,
+                "policy": policy_kind,
                 "instruction": env.unwrapped.task.instruction,
                 "control_steps_per_s": round((step + 1) / stepping, 1),
                 "return": round(total, 2),
