@@ -113,15 +113,19 @@ class Task(ABC):
         """``compute()`` once per simulation state: observation, reward and success all ask for
         the same geometry within a step.  Keyed on time, positions and mocap poses, so a state
         written by hand is never served a stale answer."""
-        key = (name, data.time, data.qpos.tobytes(), data.mocap_pos.tobytes(),
-               data.mocap_quat.tobytes())
+        key = (
+            name,
+            data.time,
+            data.qpos.tobytes(),
+            data.mocap_pos.tobytes(),
+            data.mocap_quat.tobytes(),
+        )
         cache = self.__dict__.setdefault("_memo", {})
         if key not in cache:
             if len(cache) > 64:
                 cache.clear()
             cache[key] = compute()
         return cache[key]
-
 
     def to_base(self, data, points: np.ndarray) -> np.ndarray:
         """World points (..., 3) in the robot base frame."""
