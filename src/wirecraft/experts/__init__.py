@@ -2,5 +2,16 @@
 
 from wirecraft.experts.fsm import Phase, VectorFSM
 from wirecraft.experts.insertion import InsertionExpert, InsertionExpertConfig
+from wirecraft.experts.routing import RoutingExpert, RoutingExpertConfig
+from wirecraft.experts.seating import SeatingExpert, SeatingExpertConfig
 
-__all__ = ["InsertionExpert", "InsertionExpertConfig", "Phase", "VectorFSM"]
+__all__ = [
+    "InsertionExpert",
+    "InsertionExpertConfig",
+    "Phase",
+    "RoutingExpert",
+    "RoutingExpertConfig",
+    "SeatingExpert",
+    "SeatingExpertConfig",
+    "VectorFSM",
+]

@@ -167,3 +167,19 @@ class VectorFSM:
     def get(self, name: str) -> np.ndarray:
         """(N, ...) snapshot ``name`` (NaN rows where never taken since the last reset)."""
         return self.snapshots[name]
+
+
+def unwrap_envs(env_or_envs) -> list:
+    """The ``WireCraftEnv`` instances behind a gymnasium env, a WireCraft vector env or a list."""
+    if hasattr(env_or_envs, "envs"):
+        return [e.unwrapped for e in env_or_envs.envs]
+    if isinstance(env_or_envs, (list, tuple)):
+        return [e.unwrapped for e in env_or_envs]
+    return [env_or_envs.unwrapped]
+
+
+def step_toward(start: np.ndarray, goal: np.ndarray, max_step: float) -> np.ndarray:
+    """``goal``, or the point ``max_step`` from ``start`` on the way to it."""
+    delta = goal - start
+    dist = float(np.linalg.norm(delta))
+    return goal if dist <= max_step else start + delta * (max_step / dist)

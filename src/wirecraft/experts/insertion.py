@@ -35,7 +35,7 @@ import numpy as np
 
 from wirecraft.assets.robots.kinematics import axis_angle_to_mat, rotation_error
 from wirecraft.control import CartesianController, servo_action
-from wirecraft.experts.fsm import Phase, VectorFSM
+from wirecraft.experts.fsm import Phase, VectorFSM, step_toward, unwrap_envs
 
 UP = np.array([0.0, 0.0, 1.0])  # world
 TABLE_Z = 0.0  # m, table top (world)
@@ -78,15 +78,6 @@ PHASES = (
 )
 
 
-def _unwrap(env_or_envs) -> list:
-    """The ``WireCraftEnv`` instances behind a gymnasium env, a WireCraft vector env or a list."""
-    if hasattr(env_or_envs, "envs"):
-        return [e.unwrapped for e in env_or_envs.envs]
-    if isinstance(env_or_envs, (list, tuple)):
-        return [e.unwrapped for e in env_or_envs]
-    return [env_or_envs.unwrapped]
-
-
 def _rot_x(angle: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
@@ -94,13 +85,6 @@ def _rot_x(angle: float) -> np.ndarray:
 
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(rotation_error(a, b)))
-
-
-def _step_toward(start: np.ndarray, goal: np.ndarray, max_step: float) -> np.ndarray:
-    """``goal``, or the point ``max_step`` from ``start`` on the way to it."""
-    delta = goal - start
-    dist = float(np.linalg.norm(delta))
-    return goal if dist <= max_step else start + delta * (max_step / dist)
 
 
 class InsertionExpert:
@@ -111,7 +95,7 @@ class InsertionExpert:
     """
 
     def __init__(self, env_or_envs, config: InsertionExpertConfig | None = None) -> None:
-        self.envs = _unwrap(env_or_envs)
+        self.envs = unwrap_envs(env_or_envs)
         for env in self.envs:
             if not isinstance(env.controller, CartesianController) or env.controller.name != (
                 "cartesian"
@@ -280,7 +264,7 @@ class InsertionExpert:
             if own is not None:
                 own_mask[i], own_value[i] = True, own
             target_pos, _ = self._ctl_target(i)
-            step_goal = _step_toward(target_pos, goal_pos, speed)
+            step_goal = step_toward(target_pos, goal_pos, speed)
             actions[i] = servo_action(env.controller, step_goal, goal_rot, gripper)
         before = self.fsm.phase.copy()
         reached = np.where(own_mask, own_value, self.fsm.within(pos_err, rot_err))

@@ -1,0 +1,378 @@
+"""Scripted expert for clip routing (``WireCraft/ClipRouting-v0``, ``cartesian`` control).
+
+What it reads (privileged; per environment ``env = env_or_envs.unwrapped``, never the task's
+success flags or ``task.routed``):
+
+- ``env.model`` / ``env.data``: the MuJoCo state of that environment;
+- ``env.wire_points()``: the wire's centre line (its nodes, clamp end first);
+- ``env.task``: ``placed_clips(data)`` (clip position, yaw and ``ClipConfig``),
+  ``assembly.clamp`` (the clamp body, the first anchor), ``assembly.wire.config`` (radius,
+  length), ``assembly.wire_contacts`` with ``pad_contacts(model, data, ...)`` (both pads on the
+  wire);
+- ``env.robot``: ``tcp_pose_base(model, data)``, ``gripper_velocity``, ``max_opening``;
+- ``env.controller``: its own target pose and base frame, through
+  ``wirecraft.control.servo_action``.
+
+Phases (``PHASES``), once per clip: approach -> descend -> close -> lift -> rotate -> stretch
+-> pull_back -> push -> release -> retreat, then back to ``approach`` for the next clip
+(re-grasp) or ``done``.  Every goal is a TCP pose in the robot base frame.
+
+- Grasp: the wire node nearest the clip among those far enough along the wire (from the
+  anchor: the clamp for the first clip, the previous clip afterwards) to reach past the clip;
+  TCP pointing down, pads closing across the local wire tangent (the nearer of the two
+  equivalent yaws); the TCP descends to a fixed height above the table.
+- At grasp time the anchor-to-clip direction (horizontal) is frozen.
+- Lift, rotate the pads' closing axis across the slot axis, over-stretch: the grasped point
+  ``over_stretch`` past the slot along the frozen direction, at the carry height; pull back to
+  the clip front (``front`` beyond the clip's centre along the slot axis, on the far side from
+  the anchor); push down to ``push_height``; release; retreat.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wirecraft.assets.robots.kinematics import rotation_error
+from wirecraft.control import CartesianController, servo_action
+from wirecraft.experts.fsm import Phase, VectorFSM, step_toward, unwrap_envs
+from wirecraft.tasks.assembly import resample
+
+UP = np.array([0.0, 0.0, 1.0])  # world
+
+
+@dataclass(frozen=True)
+class RoutingExpertConfig:
+    """Geometry and speeds of the routing expert (SI units; per control step where stated)."""
+
+    grasp_height: float = 0.009  # m: TCP above the table when closing on the wire
+    hover: float = 0.05  # m above the grasp height where the approach ends
+    carry_height: float = 0.032  # m: TCP above the table while carrying the wire over the clip
+    over_stretch: float = 0.03  # m past the slot centre along the anchor-to-clip direction
+    front: float = 0.022  # m past the slot centre along the slot axis (pads clear the clip)
+    push_height: float = 0.010  # m: TCP above the table at the end of the push
+    reach_slack: float = 0.03  # m of wire beyond (anchor-to-clip + front) the grasp point needs
+    grasp_spacing: float = 0.005  # m between candidate grasp points along the centre line
+    clip_clearance: float = 0.035  # m (horizontal) between a grasp point and any clip
+    plug_clearance: float = 0.025  # m of wire kept between the grasp point and the plug
+    pre_open: float = 0.03  # m pad gap before closing
+    descend_speed: float = 0.004  # m per step
+    carry_speed: float = 0.008  # m per step
+    push_speed: float = 0.002  # m per step
+    retreat: float = 0.05  # m straight up after releasing
+    max_grasp_retries: int = 2
+
+
+PHASES = (
+    Phase("approach", pos_tol=0.006, rot_tol=0.06, dwell=1, timeout=200),
+    Phase("descend", pos_tol=0.002, rot_tol=0.05, dwell=2, timeout=60),
+    Phase("close", pos_tol=np.inf, rot_tol=np.inf, dwell=4, timeout=40),
+    Phase("lift", pos_tol=0.008, rot_tol=0.08, dwell=1, timeout=40),
+    Phase("rotate", pos_tol=0.01, rot_tol=0.05, dwell=1, timeout=120),
+    Phase("stretch", pos_tol=0.004, rot_tol=0.05, dwell=2, timeout=60),
+    Phase("pull_back", pos_tol=0.003, rot_tol=0.05, dwell=2, timeout=40),
+    Phase("push", pos_tol=0.002, rot_tol=0.06, dwell=4, timeout=40),
+    Phase("release", pos_tol=np.inf, rot_tol=np.inf, dwell=3, timeout=20),
+    Phase("retreat", pos_tol=0.01, rot_tol=0.1, dwell=1, timeout=30),
+    Phase("done"),
+)
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.linalg.norm(rotation_error(a, b)))
+
+
+def _horizontal(v: np.ndarray, up: np.ndarray) -> np.ndarray:
+    v = v - np.dot(v, up) * up
+    return v / max(np.linalg.norm(v), 1e-9)
+
+
+class RoutingExpert:
+    """Vectorized scripted expert for the routing task (N environments, N = 1 for one env).
+
+    ``reset(env_ids)`` after the environments are reset (a vector env's autoreset included);
+    ``act()`` returns the (N, 7) ``cartesian`` actions for the current states.
+    """
+
+    def __init__(self, env_or_envs, config: RoutingExpertConfig | None = None) -> None:
+        self.envs = unwrap_envs(env_or_envs)
+        for env in self.envs:
+            if not isinstance(env.controller, CartesianController) or env.controller.name != (
+                "cartesian"
+            ):
+                raise ValueError("RoutingExpert needs control='cartesian'")
+            if not hasattr(env.task, "placed_clips"):
+                raise ValueError("RoutingExpert needs the routing task")
+        self.config = config or RoutingExpertConfig()
+        self.num_envs = len(self.envs)
+        self.fsm = VectorFSM(PHASES, self.num_envs)
+        self.clip = np.zeros(self.num_envs, int)  # the clip being routed
+        self.grasp_retries = np.zeros(self.num_envs, int)
+        self.grasp_arc = np.zeros(self.num_envs)  # m along the wire of the current grasp
+        self._last_time = np.full(self.num_envs, -np.inf)
+        self.reset()
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def reset(self, env_ids=None) -> None:
+        """Start over (first clip, first phase, snapshots cleared) for ``env_ids`` (None: all)."""
+        self.fsm.reset(env_ids)
+        mask = self.fsm._mask(env_ids)
+        self.clip[mask] = 0
+        self.grasp_retries[mask] = 0
+        n = self.num_envs
+        for name, shape in (
+            ("grasp_pos", (n, 3)),
+            ("grasp_rot", (n, 3, 3)),
+            ("direction", (n, 3)),  # anchor-to-clip, horizontal, frozen at grasp time
+            ("lift_from", (n, 3)),
+            ("slot_rot", (n, 3, 3)),
+            ("hold_pos", (n, 3)),
+        ):
+            if name not in self.fsm.snapshots:
+                self.fsm.snapshots[name] = np.full(shape, np.nan)
+        self._last_time[mask] = -np.inf
+
+    @property
+    def phase_names(self) -> list[str]:
+        return self.fsm.names
+
+    # -- frames ------------------------------------------------------------------------------
+    def _base(self, i):
+        env = self.envs[i]
+        site = env.controller.index.base_site
+        return env.data.site_xpos[site].copy(), env.data.site_xmat[site].reshape(3, 3).copy()
+
+    def _to_base(self, i, points):
+        origin, base = self._base(i)
+        return (np.asarray(points) - origin) @ base
+
+    def _up(self, i):
+        return self._base(i)[1].T @ UP
+
+    def _table_height(self, i, height):
+        """Base-frame point offset: ``height`` above the table (z = 0 in the world)."""
+        return self._to_base(i, np.array([0.0, 0.0, height]))
+
+    def _ctl_target(self, i):
+        ctl = self.envs[i].controller
+        base = ctl.base_rot_world
+        return base.T @ (ctl.target_pos - ctl.base_pos_world), base.T @ ctl.target_rot
+
+    def _at_height(self, i, point, height):
+        """``point`` (base frame) moved vertically to ``height`` above the table."""
+        up = self._up(i)
+        table = self._table_height(i, 0.0)
+        return point + (height - np.dot(point - table, up)) * up
+
+    def _down_rot(self, i, axis):
+        """TCP rotation pointing down, pads closing across the horizontal ``axis``; of the two
+        equivalent yaws, the one nearer the controller's current target."""
+        up = self._up(i)
+        axis = _horizontal(axis, up)
+        z = -up
+        _, current = self._ctl_target(i)
+        best = None
+        for sign in (1.0, -1.0):
+            y = sign * np.cross(up, axis)
+            rot = np.column_stack([np.cross(y, z), y, z])
+            if best is None or _angle(rot, current) < _angle(best, current):
+                best = rot
+        return best
+
+    # -- the route ---------------------------------------------------------------------------
+    def _clip_geometry(self, i):
+        """(slot centre (base frame), slot axis (base frame, unit, horizontal), config) of the
+        clip being routed."""
+        env = self.envs[i]
+        clip = env.task.placed_clips(env.data)[self.clip[i]]
+        world_axis = np.array([np.cos(clip.yaw), np.sin(clip.yaw), 0.0])
+        slot = np.array(clip.pos) + [0.0, 0.0, clip.config.base_height]
+        origin, base = self._base(i)
+        return self._to_base(i, slot), base.T @ world_axis, clip.config
+
+    def _anchor(self, i):
+        """(anchor point (base frame), its arc length along the wire): the clamp for the first
+        clip, the previous clip's slot afterwards."""
+        env = self.envs[i]
+        points = self._to_base(i, env.wire_points())
+        if self.clip[i] == 0:
+            clamp = env.data.xpos[env.model.body(env.task.assembly.clamp).id]
+            return self._to_base(i, clamp), 0.0
+        prev = env.task.placed_clips(env.data)[self.clip[i] - 1]
+        slot = self._to_base(i, np.array(prev.pos) + [0.0, 0.0, prev.config.base_height])
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        return slot, float(arc[np.argmin(np.linalg.norm(points - slot, axis=1))])
+
+    def _plan_grasp(self, i) -> None:
+        """Grasp point, gripper orientation across the local tangent, frozen direction.
+
+        Candidates are the wire's centre line resampled every ``grasp_spacing``; those far
+        enough along the wire (anchor arc + anchor-to-clip distance + ``front`` +
+        ``reach_slack``), clear of every clip (``clip_clearance``) and of the plug
+        (``plug_clearance`` of wire before it); of those, the one nearest the clip.  When none
+        qualifies, the clearances are kept and the reach is given up, then everything."""
+        cfg, env = self.config, self.envs[i]
+        up = self._up(i)
+        nodes = self._to_base(i, env.wire_points())
+        points = resample(nodes, cfg.grasp_spacing)
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        slot, _, _ = self._clip_geometry(i)
+        anchor, anchor_arc = self._anchor(i)
+        need = anchor_arc + np.linalg.norm(slot - anchor) + cfg.front + cfg.reach_slack
+        clips = [self._to_base(i, np.array(c.pos)) for c in env.task.placed_clips(env.data)]
+        clear = np.ones(len(points), bool)
+        for c in clips:
+            flat = points - c
+            flat = flat - np.outer(flat @ up, up)
+            clear &= np.linalg.norm(flat, axis=1) > cfg.clip_clearance
+        clear &= arc <= arc[-1] - cfg.plug_clearance
+        far = arc >= need
+        for ok in (clear & far, clear, np.ones(len(points), bool)):
+            if ok.any():
+                break
+        candidates = np.flatnonzero(ok)
+        k = candidates[np.argmin(np.linalg.norm(points[candidates] - slot, axis=1))]
+        tangent = points[min(k + 1, len(points) - 1)] - points[max(k - 1, 0)]
+        grasp = self._at_height(i, points[k], cfg.grasp_height)
+        self.fsm.snapshots["grasp_pos"][i] = grasp
+        self.fsm.snapshots["grasp_rot"][i] = self._down_rot(i, tangent)
+        self.fsm.snapshots["direction"][i] = _horizontal(slot - anchor, up)
+        self.grasp_arc[i] = arc[k]
+
+    # -- control -------------------------------------------------------------------------------
+    def act(self, observations=None) -> np.ndarray:
+        """(N, 7) actions for the current states (``observations`` are not needed: the expert
+        reads the privileged state listed in the module docstring)."""
+        del observations
+        actions = np.zeros((self.num_envs, 7))
+        pos_err = np.zeros(self.num_envs)
+        rot_err = np.zeros(self.num_envs)
+        own_mask = np.zeros(self.num_envs, bool)
+        own_value = np.zeros(self.num_envs, bool)
+        for i in range(self.num_envs):
+            env = self.envs[i]
+            if env.data.time < self._last_time[i]:  # the environment was reset: start over
+                self.reset([i])
+            self._last_time[i] = env.data.time
+            goal_pos, goal_rot, speed, gripper, own = self._goals(i)
+            tcp_pos, tcp_rot = env.robot.tcp_pose_base(env.model, env.data)
+            pos_err[i] = np.linalg.norm(goal_pos - tcp_pos)
+            rot_err[i] = _angle(goal_rot, tcp_rot)
+            if own is not None:
+                own_mask[i], own_value[i] = True, own
+            target_pos, _ = self._ctl_target(i)
+            step_goal = step_toward(target_pos, goal_pos, speed)
+            actions[i] = servo_action(env.controller, step_goal, goal_rot, gripper)
+        before = self.fsm.phase.copy()
+        reached = np.where(own_mask, own_value, self.fsm.within(pos_err, rot_err))
+        advanced = self.fsm.advance_if(reached)
+        self._on_advance(advanced, before)
+        return actions
+
+    def _held(self, i) -> bool:
+        env = self.envs[i]
+        return all(env.task.pad_contacts(env.model, env.data, env.task.assembly.wire_contacts))
+
+    def _goals(self, i):
+        """(goal position, goal rotation, max step (m), gripper command, own reached flag or
+        None) of environment ``i`` in its current phase; base frame."""
+        cfg, env, fsm = self.config, self.envs[i], self.fsm
+        name = fsm.phases[fsm.phase[i]].name
+        up = self._up(i)
+        fast = 1.0
+        open_cmd = 1.0 - 2.0 * min(cfg.pre_open, env.robot.max_opening) / env.robot.max_opening
+
+        if name == "done":
+            hold = fsm.get("hold_pos")[i]
+            _, rot = self._ctl_target(i)
+            return hold + cfg.retreat * up, rot, cfg.descend_speed, open_cmd, None
+
+        grasp_pos, grasp_rot = fsm.get("grasp_pos")[i], fsm.get("grasp_rot")[i]
+        # ---- Approach: above the grasp node, pads across the wire, open ----------------------
+        if name == "approach":
+            if np.isnan(grasp_pos).any():
+                self._plan_grasp(i)
+                grasp_pos, grasp_rot = fsm.get("grasp_pos")[i], fsm.get("grasp_rot")[i]
+            return grasp_pos + cfg.hover * up, grasp_rot, fast, open_cmd, None
+
+        # ---- Descend: straight down to the fixed grasp height ---------------------------------
+        if name == "descend":
+            return grasp_pos, grasp_rot, cfg.descend_speed, open_cmd, None
+
+        # ---- Close: hold still, close; done when both pads touch the wire and stopped --------
+        if name == "close":
+            still = abs(env.robot.gripper_velocity(env.model, env.data)) < 0.005
+            return grasp_pos, grasp_rot, fast, 1.0, bool(self._held(i) and still)
+
+        lift_from = fsm.get("lift_from")[i]
+        carry = self._at_height(i, lift_from, cfg.carry_height)
+        # ---- Lift: straight up to the carry height -------------------------------------------
+        if name == "lift":
+            return carry, grasp_rot, fast, 1.0, None
+
+        slot_rot = fsm.get("slot_rot")[i]
+        # ---- Rotate: pads across the slot axis, in place ---------------------------------------
+        if name == "rotate":
+            return carry, slot_rot, cfg.carry_speed, 1.0, None
+
+        slot, axis, _ = self._clip_geometry(i)
+        direction = fsm.get("direction")[i]
+        # ---- Stretch: past the slot along the frozen anchor-to-clip direction ----------------
+        if name == "stretch":
+            goal = self._at_height(i, slot + cfg.over_stretch * direction, cfg.carry_height)
+            return goal, slot_rot, cfg.carry_speed, 1.0, None
+
+        sign = 1.0 if np.dot(axis, direction) >= 0 else -1.0
+        front = slot + cfg.front * sign * axis
+        # ---- Pull back: to the clip front (on the slot axis, beyond the clip) ---------------
+        if name == "pull_back":
+            goal = self._at_height(i, front, cfg.carry_height)
+            return goal, slot_rot, cfg.descend_speed, 1.0, None
+
+        # ---- Push: down, dragging the wire past the lips -------------------------------------
+        if name == "push":
+            goal = self._at_height(i, front, cfg.push_height)
+            return goal, slot_rot, cfg.push_speed, 1.0, None
+
+        hold = fsm.get("hold_pos")[i]
+        # ---- Release: open where the push ended ----------------------------------------------
+        if name == "release":
+            opened = env.robot.gripper_opening(env.model, env.data) > (
+                2.0 * env.task.assembly.wire.config.radius + 0.01
+            )
+            return hold, slot_rot, fast, open_cmd, bool(opened)
+
+        # ---- Retreat: straight up -------------------------------------------------------------
+        return hold + cfg.retreat * up, slot_rot, cfg.descend_speed, open_cmd, None
+
+    def _on_advance(self, advanced: np.ndarray, before: np.ndarray) -> None:
+        """Snapshots and branches when environments leave a phase."""
+        fsm, cfg = self.fsm, self.config
+        idx = fsm.index
+        for i in np.flatnonzero(advanced):
+            env = self.envs[i]
+            left = before[i]
+            one = np.zeros(self.num_envs, bool)
+            one[i] = True
+            if left == idx("close"):
+                tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
+                fsm.snapshots["lift_from"][i] = tcp_pos
+            elif left == idx("lift"):
+                if not self._held(i) and self.grasp_retries[i] < cfg.max_grasp_retries:
+                    self.grasp_retries[i] += 1
+                    fsm.snapshots["grasp_pos"][i] = np.nan
+                    fsm.goto("approach", one)
+                    continue
+                _, axis, _ = self._clip_geometry(i)
+                fsm.snapshots["slot_rot"][i] = self._down_rot(i, axis)
+            elif left == idx("push"):
+                tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
+                fsm.snapshots["hold_pos"][i] = tcp_pos
+            elif left == idx("retreat"):
+                if self.clip[i] + 1 < len(env.task.placed_clips(env.data)):
+                    self.clip[i] += 1
+                    self.grasp_retries[i] = 0
+                    fsm.snapshots["grasp_pos"][i] = np.nan
+                    fsm.goto("approach", one)
+                    continue
