@@ -1,5 +1,6 @@
 """Scripted experts: a vectorized finite-state-machine framework and one expert per task."""
 
+from wirecraft.experts.base import ScriptedExpert
 from wirecraft.experts.fsm import Phase, VectorFSM
 from wirecraft.experts.insertion import InsertionExpert, InsertionExpertConfig
 from wirecraft.experts.routing import RoutingExpert, RoutingExpertConfig
@@ -11,6 +12,7 @@ __all__ = [
     "Phase",
     "RoutingExpert",
     "RoutingExpertConfig",
+    "ScriptedExpert",
     "SeatingExpert",
     "SeatingExpertConfig",
     "VectorFSM",

@@ -33,9 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wirecraft.assets.robots.kinematics import axis_angle_to_mat, rotation_error
-from wirecraft.control import CartesianController, servo_action
-from wirecraft.experts.fsm import Phase, VectorFSM, step_toward, unwrap_envs
+from wirecraft.assets.robots.kinematics import axis_angle_to_mat
+from wirecraft.experts.base import ScriptedExpert, rotation_angle
+from wirecraft.experts.fsm import Phase
 
 UP = np.array([0.0, 0.0, 1.0])  # world
 TABLE_Z = 0.0  # m, table top (world)
@@ -83,77 +83,41 @@ def _rot_x(angle: float) -> np.ndarray:
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
-def _angle(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.linalg.norm(rotation_error(a, b)))
-
-
-class InsertionExpert:
+class InsertionExpert(ScriptedExpert):
     """Vectorized scripted expert for the insertion task (N environments, N = 1 for one env).
 
     ``reset(env_ids)`` after the environments are reset (a vector env's autoreset included);
     ``act()`` returns the (N, 7) ``cartesian`` actions for the current states.
     """
 
-    def __init__(self, env_or_envs, config: InsertionExpertConfig | None = None) -> None:
-        self.envs = unwrap_envs(env_or_envs)
-        for env in self.envs:
-            if not isinstance(env.controller, CartesianController) or env.controller.name != (
-                "cartesian"
-            ):
-                raise ValueError("InsertionExpert needs control='cartesian'")
-            if not hasattr(env.task, "entry_site"):
-                raise ValueError("InsertionExpert needs the insertion task")
-        self.config = config or InsertionExpertConfig()
-        self.num_envs = len(self.envs)
-        self.fsm = VectorFSM(PHASES, self.num_envs)
+    PHASES = PHASES
+    SNAPSHOTS = (
+        ("grasp_rot", (3, 3)),
+        ("grasp_pos", (3,)),
+        ("plug_in_tcp", (4, 4)),
+        ("lift_from", (3,)),
+        ("plug_goal_rot", (3, 3)),
+        ("hold_pos", (3,)),
+        ("hold_rot", (3, 3)),
+    )
+    CONTROL = "cartesian"
+    TASK = "insertion"
+    config_class = InsertionExpertConfig
+
+    def _init_state(self) -> None:
         self.insert_retries = np.zeros(self.num_envs, int)
         self.grasp_retries = np.zeros(self.num_envs, int)
-        self._last_time = np.full(self.num_envs, -np.inf)  # s, to notice environment resets
-        self.reset()
 
-    # -- lifecycle ---------------------------------------------------------------------------
-    def reset(self, env_ids=None) -> None:
-        """Start over (first phase, snapshots cleared) for ``env_ids`` (None: all)."""
-        self.fsm.reset(env_ids)
-        mask = self.fsm._mask(env_ids)
+    def _reset_state(self, mask) -> None:
         self.insert_retries[mask] = 0
         self.grasp_retries[mask] = 0
-        n = self.num_envs
-        for name, shape in (
-            ("grasp_rot", (n, 3, 3)),
-            ("grasp_pos", (n, 3)),
-            ("plug_in_tcp", (n, 4, 4)),
-            ("lift_from", (n, 3)),
-            ("plug_goal_rot", (n, 3, 3)),
-            ("hold_pos", (n, 3)),
-            ("hold_rot", (n, 3, 3)),
-        ):
-            if name not in self.fsm.snapshots:
-                self.fsm.snapshots[name] = np.full(shape, np.nan)
-        self._last_time[mask] = -np.inf
-
-    @property
-    def phase_names(self) -> list[str]:
-        return self.fsm.names
 
     # -- frames ------------------------------------------------------------------------------
-    def _base(self, i):
-        env = self.envs[i]
-        site = env.controller.index.base_site
-        return env.data.site_xpos[site].copy(), env.data.site_xmat[site].reshape(3, 3).copy()
-
-    def _to_base(self, i, pos, rot):
-        origin, base = self._base(i)
-        return base.T @ (pos - origin), base.T @ rot
-
     def _plug_base(self, i):
+        """The plug's position and rotation in the base frame."""
         env = self.envs[i]
-        return self._to_base(i, *env.task.assembly.plug_pose(env.data))
-
-    def _ctl_target(self, i):
-        ctl = self.envs[i].controller
-        base = ctl.base_rot_world
-        return base.T @ (ctl.target_pos - ctl.base_pos_world), base.T @ ctl.target_rot
+        pos, rot = env.task.assembly.plug_pose(env.data)
+        return self._to_base(i, pos), self._base(i)[1].T @ rot
 
     # -- snapshots ---------------------------------------------------------------------------
     def _take_grasp_goal(self, i) -> None:
@@ -166,9 +130,9 @@ class InsertionExpert:
         axis = plug_rot[:, 0] - np.dot(plug_rot[:, 0], up) * up
         axis /= np.linalg.norm(axis)
         grasp = env.data.site_xpos[task.assembly.grasp_site]
-        grasp, _ = self._to_base(i, grasp, plug_rot)
+        grasp = self._to_base(i, grasp)
         grasp = grasp - cfg.grasp_back * axis
-        table = self._to_base(i, np.array([0.0, 0.0, TABLE_Z]), plug_rot)[0]
+        table = self._to_base(i, np.array([0.0, 0.0, TABLE_Z]))
         grasp_height = max(np.dot(grasp - table, up), cfg.min_tcp_height)
         grasp = grasp + (grasp_height - np.dot(grasp - table, up)) * up
         z = -up
@@ -177,7 +141,7 @@ class InsertionExpert:
         for sign in (1.0, -1.0):
             y = sign * np.cross(up, axis)
             rot = np.column_stack([np.cross(y, z), y, z])
-            if best is None or _angle(rot, current) < _angle(best, current):
+            if best is None or rotation_angle(rot, current) < rotation_angle(best, current):
                 best = rot
         # Approach pitch: the pads' tops lean back toward the wire, so the gripper may later
         # pitch forward (to keep a plug that turns in the pads aligned) without its pads
@@ -216,7 +180,7 @@ class InsertionExpert:
         the connector's symmetry) nearest to the plug's current roll."""
         env = self.envs[i]
         task = env.task
-        _, port_rot = self._to_base(i, np.zeros(3), env.data.xmat[task.port_id].reshape(3, 3))
+        port_rot = self._base(i)[1].T @ env.data.xmat[task.port_id].reshape(3, 3)
         _, plug_rot = self._plug_base(i)
         axis = port_rot[:, 0]
         up = plug_rot[:, 2] - np.dot(plug_rot[:, 2], axis) * axis
@@ -243,35 +207,6 @@ class InsertionExpert:
         return tip - self.envs[i].task.connector.plug_length * plug_rot[:, 0]
 
     # -- control -------------------------------------------------------------------------------
-    def act(self, observations=None) -> np.ndarray:
-        """(N, 7) actions for the current states (``observations`` are not needed: the expert
-        reads the privileged state listed in the module docstring)."""
-        del observations
-        actions = np.zeros((self.num_envs, 7))
-        pos_err = np.zeros(self.num_envs)
-        rot_err = np.zeros(self.num_envs)
-        own_mask = np.zeros(self.num_envs, bool)  # phases with their own "reached" criterion
-        own_value = np.zeros(self.num_envs, bool)
-        for i in range(self.num_envs):
-            env = self.envs[i]
-            if env.data.time < self._last_time[i]:  # the environment was reset: start over
-                self.reset([i])
-            self._last_time[i] = env.data.time
-            goal_pos, goal_rot, speed, gripper, own = self._goals(i)
-            tcp_pos, tcp_rot = env.robot.tcp_pose_base(env.model, env.data)
-            pos_err[i] = np.linalg.norm(goal_pos - tcp_pos)
-            rot_err[i] = _angle(goal_rot, tcp_rot)
-            if own is not None:
-                own_mask[i], own_value[i] = True, own
-            target_pos, _ = self._ctl_target(i)
-            step_goal = step_toward(target_pos, goal_pos, speed)
-            actions[i] = servo_action(env.controller, step_goal, goal_rot, gripper)
-        before = self.fsm.phase.copy()
-        reached = np.where(own_mask, own_value, self.fsm.within(pos_err, rot_err))
-        advanced = self.fsm.advance_if(reached)
-        self._on_advance(advanced, before)
-        return actions
-
     def _gripper_pre_open(self, i) -> float:
         """Gripper command opening the pads to the tail width + a margin."""
         env = self.envs[i]
@@ -319,8 +254,8 @@ class InsertionExpert:
 
         # ---- Pre-insert: plug on the socket axis, pre_insert before the mouth, aligned --------
         plug_rot = self._plug_goal_rot_cached(i)
-        entry = self._to_base(i, env.data.site_xpos[env.task.entry_site], np.eye(3))[0]
-        seated = self._to_base(i, env.data.site_xpos[env.task.seated_site], np.eye(3))[0]
+        entry = self._to_base(i, env.data.site_xpos[env.task.entry_site])
+        seated = self._to_base(i, env.data.site_xpos[env.task.seated_site])
         axis = plug_rot[:, 0]
         if name == "pre_insert":
             tip = entry - cfg.pre_insert * axis

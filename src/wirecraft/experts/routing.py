@@ -34,9 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wirecraft.assets.robots.kinematics import rotation_error
-from wirecraft.control import CartesianController, servo_action
-from wirecraft.experts.fsm import Phase, VectorFSM, step_toward, unwrap_envs
+from wirecraft.experts.base import ScriptedExpert, rotation_angle
+from wirecraft.experts.fsm import Phase
 from wirecraft.tasks.assembly import resample
 
 UP = np.array([0.0, 0.0, 1.0])  # world
@@ -79,85 +78,47 @@ PHASES = (
 )
 
 
-def _angle(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.linalg.norm(rotation_error(a, b)))
-
-
 def _horizontal(v: np.ndarray, up: np.ndarray) -> np.ndarray:
     v = v - np.dot(v, up) * up
     return v / max(np.linalg.norm(v), 1e-9)
 
 
-class RoutingExpert:
+class RoutingExpert(ScriptedExpert):
     """Vectorized scripted expert for the routing task (N environments, N = 1 for one env).
 
     ``reset(env_ids)`` after the environments are reset (a vector env's autoreset included);
     ``act()`` returns the (N, 7) ``cartesian`` actions for the current states.
     """
 
-    def __init__(self, env_or_envs, config: RoutingExpertConfig | None = None) -> None:
-        self.envs = unwrap_envs(env_or_envs)
-        for env in self.envs:
-            if not isinstance(env.controller, CartesianController) or env.controller.name != (
-                "cartesian"
-            ):
-                raise ValueError("RoutingExpert needs control='cartesian'")
-            if not hasattr(env.task, "placed_clips"):
-                raise ValueError("RoutingExpert needs the routing task")
-        self.config = config or RoutingExpertConfig()
-        self.num_envs = len(self.envs)
-        self.fsm = VectorFSM(PHASES, self.num_envs)
+    PHASES = PHASES
+    SNAPSHOTS = (
+        ("grasp_pos", (3,)),
+        ("grasp_rot", (3, 3)),
+        ("direction", (3,)),  # anchor-to-clip, horizontal, frozen at grasp time
+        ("lift_from", (3,)),
+        ("slot_rot", (3, 3)),
+        ("hold_pos", (3,)),
+    )
+    CONTROL = "cartesian"
+    TASK = "routing"
+    config_class = RoutingExpertConfig
+
+    def _init_state(self) -> None:
         self.clip = np.zeros(self.num_envs, int)  # the clip being routed
         self.grasp_retries = np.zeros(self.num_envs, int)
         self.grasp_arc = np.zeros(self.num_envs)  # m along the wire of the current grasp
-        self._last_time = np.full(self.num_envs, -np.inf)
-        self.reset()
 
-    # -- lifecycle ---------------------------------------------------------------------------
-    def reset(self, env_ids=None) -> None:
-        """Start over (first clip, first phase, snapshots cleared) for ``env_ids`` (None: all)."""
-        self.fsm.reset(env_ids)
-        mask = self.fsm._mask(env_ids)
+    def _reset_state(self, mask) -> None:
         self.clip[mask] = 0
         self.grasp_retries[mask] = 0
-        n = self.num_envs
-        for name, shape in (
-            ("grasp_pos", (n, 3)),
-            ("grasp_rot", (n, 3, 3)),
-            ("direction", (n, 3)),  # anchor-to-clip, horizontal, frozen at grasp time
-            ("lift_from", (n, 3)),
-            ("slot_rot", (n, 3, 3)),
-            ("hold_pos", (n, 3)),
-        ):
-            if name not in self.fsm.snapshots:
-                self.fsm.snapshots[name] = np.full(shape, np.nan)
-        self._last_time[mask] = -np.inf
-
-    @property
-    def phase_names(self) -> list[str]:
-        return self.fsm.names
 
     # -- frames ------------------------------------------------------------------------------
-    def _base(self, i):
-        env = self.envs[i]
-        site = env.controller.index.base_site
-        return env.data.site_xpos[site].copy(), env.data.site_xmat[site].reshape(3, 3).copy()
-
-    def _to_base(self, i, points):
-        origin, base = self._base(i)
-        return (np.asarray(points) - origin) @ base
-
     def _up(self, i):
         return self._base(i)[1].T @ UP
 
     def _table_height(self, i, height):
         """Base-frame point offset: ``height`` above the table (z = 0 in the world)."""
         return self._to_base(i, np.array([0.0, 0.0, height]))
-
-    def _ctl_target(self, i):
-        ctl = self.envs[i].controller
-        base = ctl.base_rot_world
-        return base.T @ (ctl.target_pos - ctl.base_pos_world), base.T @ ctl.target_rot
 
     def _at_height(self, i, point, height):
         """``point`` (base frame) moved vertically to ``height`` above the table."""
@@ -176,7 +137,7 @@ class RoutingExpert:
         for sign in (1.0, -1.0):
             y = sign * np.cross(up, axis)
             rot = np.column_stack([np.cross(y, z), y, z])
-            if best is None or _angle(rot, current) < _angle(best, current):
+            if best is None or rotation_angle(rot, current) < rotation_angle(best, current):
                 best = rot
         return best
 
@@ -241,35 +202,6 @@ class RoutingExpert:
         self.grasp_arc[i] = arc[k]
 
     # -- control -------------------------------------------------------------------------------
-    def act(self, observations=None) -> np.ndarray:
-        """(N, 7) actions for the current states (``observations`` are not needed: the expert
-        reads the privileged state listed in the module docstring)."""
-        del observations
-        actions = np.zeros((self.num_envs, 7))
-        pos_err = np.zeros(self.num_envs)
-        rot_err = np.zeros(self.num_envs)
-        own_mask = np.zeros(self.num_envs, bool)
-        own_value = np.zeros(self.num_envs, bool)
-        for i in range(self.num_envs):
-            env = self.envs[i]
-            if env.data.time < self._last_time[i]:  # the environment was reset: start over
-                self.reset([i])
-            self._last_time[i] = env.data.time
-            goal_pos, goal_rot, speed, gripper, own = self._goals(i)
-            tcp_pos, tcp_rot = env.robot.tcp_pose_base(env.model, env.data)
-            pos_err[i] = np.linalg.norm(goal_pos - tcp_pos)
-            rot_err[i] = _angle(goal_rot, tcp_rot)
-            if own is not None:
-                own_mask[i], own_value[i] = True, own
-            target_pos, _ = self._ctl_target(i)
-            step_goal = step_toward(target_pos, goal_pos, speed)
-            actions[i] = servo_action(env.controller, step_goal, goal_rot, gripper)
-        before = self.fsm.phase.copy()
-        reached = np.where(own_mask, own_value, self.fsm.within(pos_err, rot_err))
-        advanced = self.fsm.advance_if(reached)
-        self._on_advance(advanced, before)
-        return actions
-
     def _held(self, i) -> bool:
         env = self.envs[i]
         return all(env.task.pad_contacts(env.model, env.data, env.task.assembly.wire_contacts))

@@ -37,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wirecraft.control import CartesianController, servo_action
-from wirecraft.experts.fsm import Phase, VectorFSM, step_toward, unwrap_envs
+from wirecraft.experts.base import ScriptedExpert
+from wirecraft.experts.fsm import Phase
 
 UP = np.array([0.0, 0.0, 1.0])  # world
 
@@ -83,74 +83,41 @@ PHASES = (
 )
 
 
-class SeatingExpert:
+class SeatingExpert(ScriptedExpert):
     """Vectorized scripted expert for the seating task (N environments, N = 1 for one env).
 
     ``reset(env_ids)`` after the environments are reset (a vector env's autoreset included);
     ``act()`` returns the (N, 4) ``cartesian_fixed`` actions for the current states.
     """
 
-    def __init__(self, env_or_envs, config: SeatingExpertConfig | None = None) -> None:
-        self.envs = unwrap_envs(env_or_envs)
-        for env in self.envs:
-            if not isinstance(env.controller, CartesianController) or env.controller.name != (
-                "cartesian_fixed"
-            ):
-                raise ValueError("SeatingExpert needs control='cartesian_fixed'")
-            if not hasattr(env.task, "placed"):
-                raise ValueError("SeatingExpert needs the seating task")
-        self.config = config or SeatingExpertConfig()
-        self.num_envs = len(self.envs)
-        self.fsm = VectorFSM(PHASES, self.num_envs)
+    PHASES = PHASES
+    SNAPSHOTS = (
+        ("grasp_pos", (3,)),
+        ("lift_from", (3,)),
+        ("hold_pos", (3,)),
+        ("clamp_pos", (3,)),
+        ("carry_from", (3,)),
+    )
+    CONTROL = "cartesian_fixed"
+    TASK = "seating"
+    config_class = SeatingExpertConfig
+
+    def _init_state(self) -> None:
         self.rng = np.random.default_rng(self.config.seed)
         self.grasp_retries = np.zeros(self.num_envs, int)
         self.settle_needed = np.zeros(self.num_envs, int)
         self.grasp_span = np.full(self.num_envs, 0.05)  # m: the plug's extent between the pads
         self.progress = np.zeros(self.num_envs)  # fraction of the lay done
-        self._last_time = np.full(self.num_envs, -np.inf)
-        self.reset()
 
-    # -- lifecycle ---------------------------------------------------------------------------
-    def reset(self, env_ids=None) -> None:
-        """Start over (first phase, snapshots cleared) for ``env_ids`` (None: all)."""
-        self.fsm.reset(env_ids)
-        mask = self.fsm._mask(env_ids)
-        n = self.num_envs
-        for name, shape in (
-            ("grasp_pos", (n, 3)),
-            ("lift_from", (n, 3)),
-            ("hold_pos", (n, 3)),
-            ("clamp_pos", (n, 3)),
-            ("carry_from", (n, 3)),
-        ):
-            if name not in self.fsm.snapshots:
-                self.fsm.snapshots[name] = np.full(shape, np.nan)
+    def _reset_state(self, mask) -> None:
         self.grasp_retries[mask] = 0
         self.progress[mask] = 0.0
         cfg = self.config
         self.settle_needed[mask] = cfg.settle_steps + self.rng.integers(
             0, cfg.settle_jitter + 1, int(mask.sum())
         )
-        self._last_time[mask] = -np.inf
-
-    @property
-    def phase_names(self) -> list[str]:
-        return self.fsm.names
 
     # -- frames ------------------------------------------------------------------------------
-    def _base(self, i):
-        env = self.envs[i]
-        site = env.controller.index.base_site
-        return env.data.site_xpos[site].copy(), env.data.site_xmat[site].reshape(3, 3).copy()
-
-    def _to_base(self, i, pos):
-        origin, base = self._base(i)
-        return (np.asarray(pos, float) - origin) @ base
-
-    def _ctl_target(self, i):
-        ctl = self.envs[i].controller
-        return ctl.base_rot_world.T @ (ctl.target_pos - ctl.base_pos_world)
-
     def _tcp(self, i):
         env = self.envs[i]
         return env.robot.tcp_pose_base(env.model, env.data)
@@ -188,42 +155,14 @@ class SeatingExpert:
         return self._to_base(i, point + height * UP)
 
     # -- control -------------------------------------------------------------------------------
-    def act(self, observations=None) -> np.ndarray:
-        """(N, 4) actions for the current states (privileged state; ``observations`` unused)."""
-        del observations
-        actions = np.zeros((self.num_envs, 4))
-        pos_err = np.zeros(self.num_envs)
-        own_mask = np.zeros(self.num_envs, bool)
-        own_value = np.zeros(self.num_envs, bool)
-        for i in range(self.num_envs):
-            env = self.envs[i]
-            if env.data.time < self._last_time[i]:
-                self.reset([i])
-            self._last_time[i] = env.data.time
-            goal, speed, gripper, own = self._goals(i)
-            tcp_pos, _ = self._tcp(i)
-            pos_err[i] = np.linalg.norm(goal - tcp_pos)
-            if own is not None:
-                own_mask[i], own_value[i] = True, own
-            step_goal = step_toward(self._ctl_target(i), goal, speed)
-            actions[i] = servo_action(env.controller, step_goal, self._hold_rot(i), gripper)
-        before = self.fsm.phase.copy()
-        reached = np.where(own_mask, own_value, self.fsm.within(pos_err, np.zeros(self.num_envs)))
-        advanced = self.fsm.advance_if(reached)
-        self._on_advance(advanced, before)
-        return actions
-
-    def _hold_rot(self, i):
-        ctl = self.envs[i].controller
-        return ctl.base_rot_world.T @ ctl.target_rot
-
     def _pre_open(self, i) -> float:
         env = self.envs[i]
         gap = min(self.grasp_span[i] + self.config.pre_open_margin, env.robot.max_opening)
         return 1.0 - 2.0 * gap / env.robot.max_opening
 
     def _goals(self, i):
-        """(goal TCP position (base frame), max step (m), gripper, own reached flag or None)."""
+        """(goal TCP position (base frame), None (hold the orientation), max step (m), gripper,
+        own reached flag or None)."""
         cfg, env, fsm = self.config, self.envs[i], self.fsm
         name = fsm.phases[fsm.phase[i]].name
         up = self._base(i)[1].T @ UP
@@ -235,14 +174,14 @@ class SeatingExpert:
             if np.isnan(grasp).any():
                 self._take_grasp_goal(i)
                 grasp = fsm.get("grasp_pos")[i]
-            return grasp + cfg.hover * up, fast, pre_open, None
+            return grasp + cfg.hover * up, None, fast, pre_open, None
         if name == "descend":
-            return grasp, cfg.descend_speed, pre_open, None
+            return grasp, None, cfg.descend_speed, pre_open, None
         if name == "settle":  # pads open, arm still: let the plug and wire come to rest
-            return grasp, fast, pre_open, bool(fsm.steps[i] + 1 >= self.settle_needed[i])
+            return grasp, None, fast, pre_open, bool(fsm.steps[i] + 1 >= self.settle_needed[i])
         if name == "close":
             still = abs(env.robot.gripper_velocity(env.model, env.data)) < 0.005
-            return grasp, fast, 1.0, bool(self._held(i) and still)
+            return grasp, None, fast, 1.0, bool(self._held(i) and still)
         if name == "lift":
             # Up, and toward the clamp by what the rise takes, so the taut wire does not drag
             # the clamp off the channel's entry.
@@ -254,7 +193,7 @@ class SeatingExpert:
             dist = float(np.linalg.norm(flat))
             reach = math.sqrt(max(dist**2 - height**2, 0.0)) - cfg.lift_slack
             goal = start + height * up + (dist - reach) * flat / dist
-            return goal, cfg.descend_speed * 2, 1.0, None
+            return goal, None, cfg.descend_speed * 2, 1.0, None
 
         # From here on the goals place the plug's wire end; the TCP keeps its offset to it
         # (re-measured each step: the plug may turn in the pads).
@@ -279,7 +218,7 @@ class SeatingExpert:
                     start[2] + t * (goal[2] - start[2]),
                 ]
             )
-            return point + offset, fast, 1.0, bool(t >= 1.0)
+            return point + offset, None, fast, 1.0, bool(t >= 1.0)
         if name == "lay":
             self.progress[i] = min(self.progress[i] + 1.0 / cfg.lay_steps, 1.0)
             frac = self.progress[i]
@@ -287,17 +226,17 @@ class SeatingExpert:
             point = self._path_point(
                 i, cfg.lay_start + frac * (cfg.lay_end - cfg.lay_start), height
             )
-            return point + offset, fast, 1.0, bool(frac >= 1.0)
+            return point + offset, None, fast, 1.0, bool(frac >= 1.0)
         if name == "place":
             point = self._path_point(i, cfg.lay_end, cfg.place_height)
-            return point + offset, cfg.place_speed, 1.0, None
+            return point + offset, None, cfg.place_speed, 1.0, None
         hold = fsm.get("hold_pos")[i]
         if name == "release":
             opened = env.robot.gripper_opening(env.model, env.data) > 0.9 * (
                 0.5 * (1.0 - pre_open) * env.robot.max_opening
             )
-            return hold, fast, pre_open, bool(opened)
-        return hold + cfg.retreat * up, cfg.descend_speed, pre_open, None
+            return hold, None, fast, pre_open, bool(opened)
+        return hold + cfg.retreat * up, None, cfg.descend_speed, pre_open, None
 
     def _take_grasp_goal(self, i) -> None:
         """Grasp position (base frame) for the fixed gripper orientation.

@@ -1,0 +1,134 @@
+"""What every scripted expert shares: the environments it drives, its state machine, noticing
+environment resets, frames, and the control loop.
+
+An expert subclass declares ``PHASES`` (its states), ``SNAPSHOTS`` (per-environment arrays
+frozen at phase changes), ``CONTROL`` and ``TASK`` (what it drives), ``config_class``, and
+implements ``_goals(i)``: for environment ``i`` in its current phase, the TCP goal position
+and rotation in the robot base frame (rotation ``None``: hold the controller's), the speed
+(m per control step), the gripper command, and its own "phase done" verdict (``None``: the
+phase's position/orientation tolerances and dwell decide).  ``_init_state`` and
+``_reset_state(mask)`` add and restart counters of its own; ``_on_advance(advanced, before)``
+acts on phase changes.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from wirecraft.assets.robots.kinematics import rotation_error
+from wirecraft.control import servo_action
+from wirecraft.experts.fsm import Phase, VectorFSM, step_toward, unwrap_envs
+
+
+def rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle (rad) of the rotation between rotation matrices ``a`` and ``b``."""
+    return float(np.linalg.norm(rotation_error(a, b)))
+
+
+class ScriptedExpert:
+    """Vectorized scripted expert over N environments (N = 1 for one environment).
+
+    ``reset(env_ids)`` after the environments are reset (a vector env's autoreset included: an
+    environment whose simulation time went back is restarted by ``act`` itself); ``act()``
+    returns the (N, action_dim) actions for the current states.
+    """
+
+    PHASES: ClassVar[tuple[Phase, ...]]
+    SNAPSHOTS: ClassVar[tuple[tuple[str, tuple[int, ...]], ...]]  # name, per-environment shape
+    CONTROL: ClassVar[str]
+    TASK: ClassVar[str]
+    config_class: ClassVar[type]
+
+    def __init__(self, env_or_envs, config=None) -> None:
+        self.envs = unwrap_envs(env_or_envs)
+        name = type(self).__name__
+        for env in self.envs:
+            if env.controller.name != self.CONTROL:
+                raise ValueError(f"{name} needs control='{self.CONTROL}'")
+            if env.task.name != self.TASK:
+                raise ValueError(f"{name} needs the {self.TASK} task")
+        self.config = config or self.config_class()
+        self.num_envs = len(self.envs)
+        self.fsm = VectorFSM(self.PHASES, self.num_envs)
+        self._last_time = np.full(self.num_envs, -np.inf)  # s, to notice environment resets
+        self._init_state()
+        self.reset()
+
+    def _init_state(self) -> None:
+        """Create the expert's own per-environment counters."""
+
+    def _reset_state(self, mask: np.ndarray) -> None:
+        """Restart the expert's own counters for the environments in ``mask``."""
+        del mask
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def reset(self, env_ids=None) -> None:
+        """Start over (first phase, snapshots cleared) for ``env_ids`` (None: all)."""
+        self.fsm.reset(env_ids)
+        mask = self.fsm._mask(env_ids)
+        for name, shape in self.SNAPSHOTS:
+            if name not in self.fsm.snapshots:
+                self.fsm.snapshots[name] = np.full((self.num_envs, *shape), np.nan)
+        self._reset_state(mask)
+        self._last_time[mask] = -np.inf
+
+    @property
+    def phase_names(self) -> list[str]:
+        return self.fsm.names
+
+    # -- frames ------------------------------------------------------------------------------
+    def _base(self, i):
+        """Robot base position (3,) and rotation (3, 3) in the world, environment ``i``."""
+        env = self.envs[i]
+        site = env.controller.index.base_site
+        return env.data.site_xpos[site].copy(), env.data.site_xmat[site].reshape(3, 3).copy()
+
+    def _to_base(self, i, points):
+        """World points (..., 3) in environment ``i``'s robot base frame."""
+        origin, base = self._base(i)
+        return (np.asarray(points, float) - origin) @ base
+
+    def _ctl_target(self, i):
+        """The controller's own target pose (it may lead the TCP), in the base frame."""
+        ctl = self.envs[i].controller
+        base = ctl.base_rot_world
+        return base.T @ (ctl.target_pos - ctl.base_pos_world), base.T @ ctl.target_rot
+
+    # -- control loop ------------------------------------------------------------------------
+    def _goals(self, i):
+        raise NotImplementedError
+
+    def _on_advance(self, advanced: np.ndarray, before: np.ndarray) -> None:
+        del advanced, before
+
+    def act(self, observations=None) -> np.ndarray:
+        """(N, action_dim) actions for the current states (privileged state; ``observations``
+        unused)."""
+        del observations
+        n = self.num_envs
+        actions = np.zeros((n, self.envs[0].action_space.shape[0]))
+        pos_err, rot_err = np.zeros(n), np.zeros(n)
+        own_mask, own_value = np.zeros(n, bool), np.zeros(n, bool)  # phases judging themselves
+        for i, env in enumerate(self.envs):
+            if env.data.time < self._last_time[i]:  # the environment was reset: start over
+                self.reset([i])
+            self._last_time[i] = env.data.time
+            goal_pos, goal_rot, speed, gripper, own = self._goals(i)
+            tcp_pos, tcp_rot = env.robot.tcp_pose_base(env.model, env.data)
+            pos_err[i] = np.linalg.norm(goal_pos - tcp_pos)
+            target_pos, target_rot = self._ctl_target(i)
+            if goal_rot is None:  # fixed orientation: hold the controller's
+                goal_rot = target_rot
+            else:
+                rot_err[i] = rotation_angle(goal_rot, tcp_rot)
+            if own is not None:
+                own_mask[i], own_value[i] = True, own
+            step_goal = step_toward(target_pos, goal_pos, speed)
+            actions[i] = servo_action(env.controller, step_goal, goal_rot, gripper)
+        before = self.fsm.phase.copy()
+        reached = np.where(own_mask, own_value, self.fsm.within(pos_err, rot_err))
+        advanced = self.fsm.advance_if(reached)
+        self._on_advance(advanced, before)
+        return actions
