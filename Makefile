@@ -22,7 +22,7 @@ $(PY):
 venv: $(PY)
 
 $(STAMP): pyproject.toml | $(PY)
-	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) -m pip install -q -e '.[dev,all]'
 	@touch $@
 
 install: $(STAMP)
