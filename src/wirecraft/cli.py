@@ -31,6 +31,54 @@ def write_json(path: str | None, payload) -> None:
     os.replace(tmp, path)
 
 
+# -- task flags shared by collect, eval and train -------------------------------------------------
+# Flag -> (keyword, type, task families that accept it).  None as families: every task.
+TASK_FLAGS: dict[str, tuple[str, type, tuple[str, ...] | None]] = {
+    "--robot": ("robot", str, None),
+    "--wire": ("wire", str, None),
+    "--control": ("control", str, None),
+    "--image-size": ("image_size", int, None),
+    "--connector": ("connector", str, ("insertion", "routing")),
+    "--clearance": ("clearance", float, ("insertion",)),
+    "--num-clips": ("num_clips", int, ("routing",)),
+    "--clip-opening": ("clip_opening", float, ("routing",)),
+    "--channel": ("channel", str, ("seating",)),
+}
+
+
+def add_task_args(p: argparse.ArgumentParser, *, default_task: str | None = "insertion") -> None:
+    """``--task`` and one flag per environment keyword (same names in every command)."""
+    p.add_argument(
+        "--task",
+        default=default_task,
+        required=default_task is None,
+        help="insertion, routing or seating (or a full gymnasium id)",
+    )
+    for flag, (key, kind, families) in TASK_FLAGS.items():
+        where = "every task" if families is None else ", ".join(families)
+        p.add_argument(flag, dest=key, type=kind, default=None, help=f"{key} ({where})")
+
+
+def task_kwargs(args: argparse.Namespace) -> tuple[str, dict]:
+    """(task family, environment keyword arguments) from ``add_task_args`` flags; a flag the
+    task does not take is an error, not silently ignored."""
+    import wirecraft
+
+    task = args.task
+    family = next((k for k, v in wirecraft.TASK_IDS.items() if task in (k, v)), None)
+    if family is None:
+        raise ValueError(f"unknown task {task!r}; valid: {', '.join(wirecraft.TASK_IDS)}")
+    kwargs = {}
+    for flag, (key, _, families) in TASK_FLAGS.items():
+        value = getattr(args, key, None)
+        if value is None:
+            continue
+        if families is not None and family not in families:
+            raise ValueError(f"{flag} does not apply to the {family} task")
+        kwargs[key] = value
+    return family, kwargs
+
+
 # -- list ---------------------------------------------------------------------------------------
 def _list_args(p):
     p.add_argument("--json", metavar="PATH", help="also write the listing as JSON")
