@@ -6,7 +6,24 @@ from wirecraft.experts.insertion import InsertionExpert, InsertionExpertConfig
 from wirecraft.experts.routing import RoutingExpert, RoutingExpertConfig
 from wirecraft.experts.seating import SeatingExpert, SeatingExpertConfig
 
+EXPERTS: dict[str, type[ScriptedExpert]] = {
+    "insertion": InsertionExpert,
+    "routing": RoutingExpert,
+    "seating": SeatingExpert,
+}
+
+
+def expert_class(task: str) -> type[ScriptedExpert]:
+    """The scripted expert of a task family; build its environments with
+    ``control=expert_class(task).CONTROL``."""
+    if task not in EXPERTS:
+        raise ValueError(f"no scripted expert for task {task!r}; valid: {', '.join(EXPERTS)}")
+    return EXPERTS[task]
+
+
 __all__ = [
+    "EXPERTS",
+    "expert_class",
     "InsertionExpert",
     "InsertionExpertConfig",
     "Phase",
