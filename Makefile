@@ -9,8 +9,10 @@ PYTHON ?= $(shell for c in python3.12 "$$(pyenv root 2>/dev/null)/versions/3.12.
 	  "$$c" -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && { echo "$$c"; break; }; done)
 
 GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1
+# Headless Chromium renders the evaluation's HTML report in a test (driven by playwright).
+BROWSER_PACKAGES := chromium
 
-.PHONY: demo test bench lint venv install sysdeps clean
+.PHONY: demo test bench lint venv install sysdeps browser clean
 
 $(PY):
 	@if [ -z "$(PYTHON)" ]; then \
@@ -40,10 +42,21 @@ sysdeps:
 	  fi; \
 	fi
 
+browser:
+	@if ! command -v chromium >/dev/null; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing a headless browser for the report test: $(BROWSER_PACKAGES)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(BROWSER_PACKAGES) >/dev/null; \
+	  else \
+	    echo "warning: 'chromium' not found; the HTML report test will be skipped." >&2; \
+	    echo "         install it, e.g. 'sudo apt-get install $(BROWSER_PACKAGES)'" >&2; \
+	  fi; \
+	fi
+
 demo: install sysdeps
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/wirecraft demo --out out/demo
 
-test: install sysdeps
+test: install sysdeps browser
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -n 2 -q
 
 bench: install
