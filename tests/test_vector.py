@@ -118,6 +118,7 @@ def test_partial_reset_touches_only_the_masked_environments():
         ({"threads": -1}, "threads"),
         ({"backend": "gpu"}, "backend"),
         ({"num_envs": 2.5}, "num_envs"),
+        ({"arrays": "jax"}, "unknown arrays"),
     ],
 )
 def test_bad_arguments(kwargs, match):
@@ -142,3 +143,26 @@ def test_image_observations_batch():
     obs, _ = venv.reset(seed=SEED)
     assert obs["rgb_side"].shape == (2, 32, 32, 3)
     assert venv.observation_space.contains(obs)
+
+
+def test_torch_arrays_match_numpy_and_share_memory():
+    torch = pytest.importorskip("torch")
+    plain = wirecraft.make_vec("insertion", 2, threads=1)
+    tensors = wirecraft.make_vec("insertion", 2, threads=1, arrays="torch")
+    actions = actions_for(plain, 3)
+    obs_np, _ = plain.reset(seed=5)
+    obs_t, _ = tensors.reset(seed=5)
+    assert isinstance(obs_t, torch.Tensor)
+    np.testing.assert_array_equal(obs_t.numpy(), obs_np)
+    for a in actions:
+        obs_np, rew_np, term_np, trunc_np, _ = plain.step(a)
+        obs_t, rew_t, term_t, trunc_t, info_t = tensors.step(torch.from_numpy(a))
+        np.testing.assert_array_equal(obs_t.numpy(), obs_np)
+        np.testing.assert_array_equal(rew_t.numpy(), rew_np)
+        assert term_t.dtype == torch.bool and trunc_t.dtype == torch.bool
+        assert isinstance(info_t["success"], np.ndarray)
+    # On the CPU the tensor is a view of the array the environment returned, not a copy.
+    raw = tensors.env._obs_copy()
+    assert np.shares_memory(tensors._tensor(raw).numpy(), raw)
+    plain.close()
+    tensors.close()

@@ -51,9 +51,24 @@ def make(task: str, **kwargs) -> gym.Env:
 BACKENDS = ("cpu",)
 
 
-def make_vec(task: str, num_envs: int, backend: str = "cpu", threads: int = 0, **kwargs):
+ARRAY_TYPES = ("numpy", "torch")
+
+
+def make_vec(
+    task: str,
+    num_envs: int,
+    backend: str = "cpu",
+    threads: int = 0,
+    arrays: str = "numpy",
+    device=None,
+    **kwargs,
+):
     """``num_envs`` environments of ``task`` whose physics steps on ``threads`` C threads
-    (0: all CPUs) with MuJoCo's batch engine; a gymnasium VectorEnv (SAME_STEP autoreset)."""
+    (0: all CPUs) with MuJoCo's batch engine; a gymnasium VectorEnv (SAME_STEP autoreset).
+
+    ``arrays="torch"`` returns observations, rewards and flags as torch tensors (on ``device``,
+    default the CPU, where they share memory with the numpy arrays) and accepts tensor
+    actions; infos stay numpy.  Needs torch (``pip install wirecraft[rl]``)."""
     from wirecraft.envs.vector import WireCraftVectorEnv
 
     if backend not in BACKENDS:
@@ -61,8 +76,15 @@ def make_vec(task: str, num_envs: int, backend: str = "cpu", threads: int = 0, *
             f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)} "
             "(the GPU backend, MuJoCo Warp, is not available yet)"
         )
+    if arrays not in ARRAY_TYPES:
+        raise ValueError(f"unknown arrays {arrays!r}; valid: {', '.join(ARRAY_TYPES)}")
     name = next(k for k, v in TASK_IDS.items() if v == _resolve(task))
-    return WireCraftVectorEnv(name, num_envs, threads=threads, **kwargs)
+    env = WireCraftVectorEnv(name, num_envs, threads=threads, **kwargs)
+    if arrays == "torch":
+        from wirecraft.envs.vector import TorchArrays
+
+        env = TorchArrays(env, device=device)
+    return env
 
 
-__all__ = ["BACKENDS", "TASK_IDS", "make", "make_vec"]
+__all__ = ["ARRAY_TYPES", "BACKENDS", "TASK_IDS", "make", "make_vec"]

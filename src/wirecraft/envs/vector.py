@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
-from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector import AutoresetMode, VectorEnv, VectorWrapper
 from gymnasium.vector.utils import batch_space, create_empty_array
 from mujoco.batch import Batch, SimulationError
 
@@ -148,4 +148,45 @@ class WireCraftVectorEnv(VectorEnv):
         return self._obs.copy()
 
 
-__all__ = ["WireCraftVectorEnv", "env_seed"]
+class TorchArrays(VectorWrapper):
+    """Observations, rewards, terminations and truncations as torch tensors; actions may be
+    tensors.  On the CPU the tensors share memory with the arrays the environment returned
+    (``torch.from_numpy``), so nothing is copied.  Infos stay numpy: they hold flags and
+    strings that tensors cannot (gymnasium's own NumpyToTorch fails on them)."""
+
+    def __init__(self, env: VectorEnv, device=None) -> None:
+        try:
+            import torch
+        except ImportError as err:
+            raise RuntimeError(
+                f"arrays='torch' needs torch ({err}); install it with: pip install 'wirecraft[rl]'"
+            ) from None
+        super().__init__(env)
+        self._torch = torch
+        self.device = torch.device(device) if device is not None else torch.device("cpu")
+
+    def _tensor(self, value):
+        if isinstance(value, dict):
+            return {k: self._tensor(v) for k, v in value.items()}
+        if isinstance(value, np.ndarray):
+            return self._torch.from_numpy(value).to(self.device)
+        return value  # text (the instruction) stays a tuple of strings
+
+    def reset(self, *, seed=None, options=None):
+        obs, infos = self.env.reset(seed=seed, options=options)
+        return self._tensor(obs), infos
+
+    def step(self, actions):
+        if isinstance(actions, self._torch.Tensor):
+            actions = actions.detach().cpu().numpy()
+        obs, rewards, terminations, truncations, infos = self.env.step(actions)
+        return (
+            self._tensor(obs),
+            self._tensor(rewards),
+            self._tensor(terminations),
+            self._tensor(truncations),
+            infos,
+        )
+
+
+__all__ = ["TorchArrays", "WireCraftVectorEnv", "env_seed"]
