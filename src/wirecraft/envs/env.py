@@ -212,13 +212,15 @@ class WireCraftEnv(gym.Env):
         self.controller.apply(self.data, action)
         return before
 
-    def finish_step(self, action, before: dict, *, failed: bool = False):
+    def finish_step(self, action, before: dict, *, failed: bool = False, forwarded: bool = False):
         """After the physics ran: the step's observation, reward, flags and info.  ``failed``:
-        the physics engine itself reported an error for this environment."""
+        the physics engine itself reported an error for this environment; ``forwarded``: the
+        caller already ran the forward pass at the new state (the vector env's batch does)."""
         model, data = self.model, self.data
         # mj_step leaves positions and contacts one substep behind qpos: bring them up to date,
         # so observations, rewards and success all describe the same instant.
-        mujoco.mj_forward(model, data)
+        if not forwarded:
+            mujoco.mj_forward(model, data)
         self._steps += 1
         if failed or not self._healthy():
             self.set_state(before)
