@@ -1,4 +1,4 @@
-"""Scripted experts: the vectorized FSM framework and the insertion expert."""
+"""The scripted insertion expert: seating, diversity draws, retries, robots (FSM: test_fsm.py)."""
 
 from __future__ import annotations
 
@@ -6,90 +6,19 @@ import numpy as np
 import pytest
 
 import wirecraft
-from wirecraft.experts import InsertionExpert, InsertionExpertConfig, Phase, VectorFSM
-
-
-def _fsm(num_envs: int = 3) -> VectorFSM:
-    return VectorFSM(
-        [Phase("a", pos_tol=0.01, rot_tol=0.1, dwell=3), Phase("b", dwell=1), Phase("end")],
-        num_envs,
-    )
-
-
-# -- FSM ------------------------------------------------------------------------------------
-def test_phase_does_not_advance_before_its_dwell():
-    fsm = _fsm(1)
-    inside = fsm.within([0.005], [0.05])
-    assert inside.tolist() == [True]
-    for _ in range(2):
-        assert not fsm.advance_if(inside).any()
-        assert fsm.names == ["a"]
-    assert fsm.advance_if(inside).tolist() == [True]
-    assert fsm.names == ["b"] and fsm.steps[0] == 0 and fsm.dwell[0] == 0
-
-
-def test_leaving_tolerance_restarts_the_dwell():
-    fsm = _fsm(1)
-    assert fsm.within([0.02], [0.0]).tolist() == [False]  # position out of tolerance
-    assert fsm.within([0.0], [0.2]).tolist() == [False]  # orientation out of tolerance
-    fsm.advance_if([True])
-    fsm.advance_if([True])
-    fsm.advance_if([False])  # dwell back to 0
-    fsm.advance_if([True])
-    fsm.advance_if([True])
-    assert fsm.names == ["a"]
-    fsm.advance_if([True])
-    assert fsm.names == ["b"]
-
-
-def test_environments_advance_independently():
-    fsm = _fsm(3)
-    reached = np.array([True, False, True])
-    for _ in range(3):
-        fsm.advance_if(reached)
-    assert fsm.names == ["b", "a", "b"]
-    assert fsm.steps.tolist() == [0, 3, 0]
-    fsm.advance_if(np.array([True, True, False]))
-    assert fsm.names == ["end", "a", "b"]
-    for _ in range(5):  # the last phase is terminal
-        fsm.advance_if(np.ones(3, bool))
-    assert fsm.names == ["end", "end", "end"] and fsm.done.all()
-    fsm.reset([1])
-    assert fsm.names == ["end", "a", "end"]
-
-
-def test_timeout_snapshots_and_goto():
-    fsm = VectorFSM([Phase("wait", dwell=100, timeout=4), Phase("next")], 2)
-    for _ in range(3):
-        assert not fsm.advance_if([False, False]).any()
-    assert fsm.advance_if([False, False]).all() and fsm.timed_out.all()
-    fsm.snapshot("pose", np.array([[1.0, 2.0], [3.0, 4.0]]), [True, False])
-    assert fsm.get("pose")[0].tolist() == [1.0, 2.0] and np.isnan(fsm.get("pose")[1]).all()
-    fsm.goto("wait", [1])
-    assert fsm.names == ["next", "wait"]
-    fsm.reset()
-    assert np.isnan(fsm.get("pose")).all()
-
-
-def test_phase_validation():
-    with pytest.raises(ValueError, match="dwell"):
-        Phase("x", dwell=0)
-    with pytest.raises(ValueError, match="unique"):
-        VectorFSM([Phase("x"), Phase("x")], 1)
-    with pytest.raises(ValueError, match="unknown phase"):
-        _fsm().index("nope")
-
+from wirecraft.experts import InsertionExpert, InsertionExpertConfig
 
 # -- insertion expert -----------------------------------------------------------------------
 SEEDS = (0, 3, 5)  # fixed seeds; the expert seats the plug on each (measured: docs/experts.md)
+HOLD = InsertionExpertConfig(release=False, diversity=False)
 
 
 def test_insertion_expert_seats_the_plug():
     env = wirecraft.make("insertion", robot="ur5", wire="articulated", connector="ethernet")
-    expert = InsertionExpert(env, InsertionExpertConfig(release=False))
+    expert = InsertionExpert(env, HOLD)
     for seed in SEEDS:
         obs, _ = env.reset(seed=seed)
-        expert.reset()
+        expert.reset(seed=seed)
         reached = inserted = False
         for _ in range(env.unwrapped.max_steps):
             action = expert.act(obs)
@@ -121,3 +50,151 @@ def test_insertion_expert_needs_cartesian_control():
     env = wirecraft.make("insertion", control="joint")
     with pytest.raises(ValueError, match="cartesian"):
         InsertionExpert(env)
+
+
+def _episode(env, expert, seed: int, steps: int | None = None):
+    """Run one seeded episode; returns the actions, the phases entered and the last info."""
+    env.reset(seed=seed)
+    expert.reset(seed=seed)
+    actions, phases, info = [], [], {}
+    for _ in range(steps or env.unwrapped.max_steps):
+        action = expert.act()[0]
+        actions.append(action)
+        if not phases or phases[-1] != expert.phase_names[0]:
+            phases.append(expert.phase_names[0])
+        _, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+    return np.array(actions), phases, info
+
+
+@pytest.fixture(scope="module")
+def ethernet():
+    env = wirecraft.make("insertion", connector="ethernet")
+    yield env
+    env.close()
+
+
+# -- diversity ----------------------------------------------------------------------------------
+def test_diversity_draws_come_from_the_seed(ethernet):
+    expert = InsertionExpert(ethernet, InsertionExpertConfig(), seed=1)
+    plans = []
+    for seed in (4, 5, 4):
+        expert.reset(seed=seed)
+        plans.append(expert.episode_plan[0])
+    assert plans[0] == plans[2] and plans[0] != plans[1]
+    cfg = InsertionExpertConfig()
+    for plan in plans:
+        assert cfg.approach_pitch_range[0] <= plan["approach_pitch"] <= cfg.approach_pitch_range[1]
+        assert cfg.grasp_back_range[0] <= plan["grasp_back"] <= cfg.grasp_back_range[1]
+        assert cfg.close_pause[0] <= plan["close_pause"] <= cfg.close_pause[1]
+    # The constructor's seed is the first episode's; without a seed reset continues the stream.
+    a, b = InsertionExpert(ethernet, seed=9), InsertionExpert(ethernet, seed=9)
+    a.reset()
+    b.reset()
+    assert a.episode_plan == b.episode_plan
+    with pytest.raises(ValueError, match="seed"):
+        InsertionExpert(ethernet, seed=-1)
+
+
+def test_without_diversity_the_plan_is_the_fixed_configuration(ethernet):
+    cfg = InsertionExpertConfig(diversity=False)
+    expert = InsertionExpert(ethernet, cfg)
+    for seed in range(20):
+        expert.reset(seed=seed)
+        plan = expert.episode_plan[0]
+        assert not plan["pick_and_drop"]
+        assert plan["approach_pitch"] == cfg.approach_pitch
+        assert plan["grasp_back"] == cfg.grasp_back
+        assert plan["descend_factor"] == plan["insert_factor"] == 1.0
+        assert plan["close_pause"] == plan["insert_pause"] == 0
+
+
+@pytest.mark.parametrize("probability", [0.3, 0.7])
+def test_pick_and_drop_is_drawn_at_the_configured_rate(ethernet, probability):
+    expert = InsertionExpert(ethernet, InsertionExpertConfig(pick_and_drop_prob=probability))
+    n = 3000
+    drops = 0
+    for seed in range(n):
+        expert.reset(seed=seed)
+        drops += expert.pick_and_drop[0]
+    sigma = (probability * (1 - probability) / n) ** 0.5
+    assert abs(drops / n - probability) < 4 * sigma
+
+
+def test_same_seed_gives_the_same_actions_with_diversity_on():
+    env_a, env_b = (wirecraft.make("insertion", connector="usb_a") for _ in range(2))
+    actions = []
+    for env in (env_a, env_b):
+        expert = InsertionExpert(env, InsertionExpertConfig(diversity=True))
+        actions.append(_episode(env, expert, seed=2, steps=150)[0])
+    np.testing.assert_array_equal(actions[0], actions[1])
+    # The same scene with another expert seed: another approach pitch, other actions.
+    expert = InsertionExpert(env_a, InsertionExpertConfig(diversity=True))
+    env_a.reset(seed=2)
+    expert.reset(seed=3)
+    other = []
+    for _ in range(20):
+        other.append(expert.act()[0])
+        env_a.step(other[-1])
+    assert not np.allclose(np.array(other), actions[0][:20])
+    env_a.close()
+    env_b.close()
+
+
+def test_a_picked_and_dropped_plug_is_grasped_again_and_seated(ethernet):
+    cfg = InsertionExpertConfig(release=False, pick_and_drop_prob=1.0)
+    expert = InsertionExpert(ethernet, cfg)
+    _, phases, info = _episode(ethernet, expert, seed=1)
+    assert phases[:6] == ["approach", "descend", "close", "lift", "drop", "approach"], phases
+    assert expert.dropped[0]
+    assert info["insert_success"], phases
+
+
+def test_a_failed_insertion_backs_out_and_retries_at_most_twice(ethernet):
+    """The expert's branch on a stalled insertion, driven without stepping the physics."""
+    expert = InsertionExpert(ethernet, InsertionExpertConfig(diversity=False))
+    ethernet.reset(seed=0)
+    expert.reset(seed=0)
+    fsm = expert.fsm
+    expert.views[0] = expert.read_state(0)
+    fsm.snapshots["plug_goal_rot"][0] = expert._plug_goal_rot(0)
+    entered = []
+    for _ in range(3):
+        fsm.goto("insert", [True])
+        expert.stalled[0] = True  # no axial progress for stall_steps
+        for _ in range(fsm.phases[fsm.index("insert")].dwell):  # the verdict must dwell
+            before = fsm.phase.copy()
+            expert._on_advance(fsm.advance_if([True]), before)
+        entered.append(expert.phase_names[0])
+        if entered[-1] == "back_out":
+            # backs out along the socket axis to the pre-insertion distance, same rotation
+            view = expert.views[0]
+            back = fsm.get("back_pos")[0] - view.tcp_pos
+            axis = view.port_rot[:, 0]
+            assert np.allclose(back, -np.dot(-back, axis) * axis, atol=1e-9)
+            assert np.dot(-back, axis) >= expert.config.pre_insert
+    assert entered == ["back_out", "back_out", "tilt"]
+    assert expert.insert_retries.tolist() == [2]
+    expert.reset()
+    assert expert.insert_retries.tolist() == [0]
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="pick_and_drop_prob"):
+        InsertionExpertConfig(pick_and_drop_prob=1.5)
+    with pytest.raises(ValueError, match="grasp_back_range"):
+        InsertionExpertConfig(grasp_back_range=(0.01, 0.0))
+    with pytest.raises(ValueError, match="max_insert_retries"):
+        InsertionExpertConfig(max_insert_retries=-1)
+
+
+# -- other robots ------------------------------------------------------------------------------
+@pytest.mark.parametrize("robot", ["panda", "wxai"])
+def test_other_robots_seat_the_plug(robot):
+    env = wirecraft.make("insertion", robot=robot, connector="ethernet")
+    expert = InsertionExpert(env, HOLD)
+    for seed in (0, 2):
+        _, phases, info = _episode(env, expert, seed=seed)
+        assert info["insert_success"], (robot, seed, phases)
+    env.close()

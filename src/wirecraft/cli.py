@@ -266,27 +266,30 @@ def cmd_bench(args) -> int:
 # -- demo ---------------------------------------------------------------------------------------
 def _demo_args(p):
     p.add_argument("--out", default="out/demo", help="folder for the images and summary")
-    p.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per wire model")
+    p.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per wire drop")
     p.add_argument("--json", metavar="PATH", help="summary as JSON (default: OUT/summary.json)")
 
 
 @command(
-    "demo", "run the main job on the CPU: drop every wire model onto the task board", _demo_args
+    "demo",
+    "run the main job on the CPU: every task's scripted expert (videos) and every wire model",
+    _demo_args,
 )
 def cmd_demo(args) -> int:
-    from wirecraft.demo import run_demo, run_task_demo
+    from wirecraft.demo import run_demo, run_task_demo, summary_markdown
 
     if not args.seconds > 0:
         raise ValueError(f"--seconds must be > 0, got {args.seconds}")
-    tasks = run_task_demo(args.out, seconds=args.seconds)
+    tasks = run_task_demo(args.out)
     print(
-        f"{'task':10s} {'policy':7s} {'steps/s':>8s} {'return':>9s} {'success':>8s} "
-        f"{'diverged':>8s}  goal"
+        f"{'task':10s} {'expert':16s} {'success':>8s} {'first (s)':>9s} {'steps/s':>8s} "
+        f"{'return':>8s}  video"
     )
     for r in tasks:
+        first = "-" if r["first_success_s"] is None else r["first_success_s"]
         print(
-            f"{r['task']:10s} {r['policy']:7s} {r['control_steps_per_s']:>8} {r['return']:>9.1f} "
-            f"{str(r['success']):>8s} {str(r['diverged']):>8s}  {r['instruction']}"
+            f"{r['task']:10s} {r['policy']:16s} {str(r['success']):>8s} {first:>9} "
+            f"{r['control_steps_per_s']:>8} {r['return']:>8.1f}  {r['video']}"
         )
     rows = run_demo(args.out, seconds=args.seconds)
     header = (
@@ -299,8 +302,125 @@ def cmd_demo(args) -> int:
             f"{r['fraction_in_channel']:>10.0%} {str(r['diverged']):>8s}"
         )
     write_json(args.json or str(Path(args.out) / "summary.json"), {"tasks": tasks, "rows": rows})
-    print(f"wrote {args.out}/tasks.png, {args.out}/wires.png and the summary")
+    (Path(args.out) / "summary.md").write_text(summary_markdown(tasks, rows))
+    videos = ", ".join(r["video"] for r in tasks)
+    print(f"wrote {args.out}: {videos}, tasks.png, wires.png, summary.md, summary.json")
     return 1 if any(r["diverged"] for r in rows + tasks) else 0
+
+
+# -- collect ------------------------------------------------------------------------------------
+def _collect_args(p):
+    add_task_args(p)
+    p.add_argument("--episodes", type=int, default=10, help="episodes the dataset should hold")
+    p.add_argument("--out", required=True, help="dataset folder (LeRobot v3)")
+    p.add_argument("--workers", type=int, default=2, help="worker processes (0: this process)")
+    p.add_argument("--ray", metavar="ADDRESS", help="generate with Ray ('local': start one here)")
+    p.add_argument("--keep-failures", action="store_true", help="also save failed episodes")
+    p.add_argument("--resume", action="store_true", help="continue the dataset in --out")
+    p.add_argument("--fps", type=int, default=30, help="frames per second (a divisor of 60)")
+    p.add_argument("--seed", type=int, default=0, help="episode k is reset with seed (SEED, k)")
+    p.add_argument(
+        "--success-hold", type=float, default=0.5, help="end once success held this long (s)"
+    )
+    p.add_argument("--vcodec", default="h264", help="video codec: h264 or libsvtav1 (AV1)")
+    p.add_argument("--commit-every", type=int, default=10, help="episodes per durable commit")
+    p.add_argument("--max-attempts", type=int, default=None, help="default: 2 * episodes + 10")
+    p.add_argument("--json", metavar="PATH", help="write the report as JSON")
+
+
+@command("collect", "write scripted demonstrations as a LeRobot v3 dataset", _collect_args)
+def cmd_collect(args) -> int:
+    from wirecraft.datasets.collect import (
+        DEFAULT_IMAGE_SIZE,
+        CollectSettings,
+        collect,
+        summary_lines,
+    )
+
+    family, kwargs = task_kwargs(args)
+    image_size = kwargs.pop("image_size", DEFAULT_IMAGE_SIZE)
+    settings = CollectSettings(
+        task=family,
+        env_kwargs=kwargs,
+        image_size=image_size,
+        fps=args.fps,
+        seed=args.seed,
+        keep_failures=args.keep_failures,
+        success_hold_s=args.success_hold,
+        vcodec=args.vcodec,
+    )
+    report = collect(
+        settings,
+        args.out,
+        args.episodes,
+        workers=args.workers,
+        ray_address=args.ray,
+        resume=args.resume,
+        commit_every=args.commit_every,
+        max_attempts=args.max_attempts,
+    )
+    for line in summary_lines(report):
+        print(line)
+    write_json(args.json, report.to_dict())
+    if report.interrupted:
+        return 128 + int(getattr(__import__("signal"), report.interrupted))
+    return 1 if report.gave_up else 0
+
+
+# -- train --------------------------------------------------------------------------------------
+def _train_args(p):
+    p.add_argument("algorithm", choices=("ppo", "sacfd", "vision-ppo"), help="RL baseline")
+    add_task_args(p)
+    p.add_argument("--out", required=True, help="run directory (checkpoints, logs, settings)")
+    p.add_argument("--num-envs", type=int, default=None, help="parallel environments")
+    p.add_argument("--steps", default=None, help="total env steps, e.g. 2e6 (default: config's)")
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--threads", type=int, default=None, help="physics threads (0: all CPUs)")
+    p.add_argument("--episode-seconds", type=float, default=None, help="episode length, s")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out")
+    p.add_argument(
+        "--set", action="append", default=[], metavar="NAME=VALUE", help="any config setting"
+    )
+    p.add_argument("--json", metavar="PATH", help="write the run summary as JSON")
+
+
+@command("train", "train an RL baseline (PPO, SACfD, vision PPO); resumable", _train_args)
+def cmd_train(args) -> int:
+    from wirecraft.rl.train import parse_cli_settings, train
+
+    task, env_kwargs = task_kwargs(args)
+    if args.episode_seconds is not None:
+        env_kwargs["episode_seconds"] = args.episode_seconds
+    steps, overrides = parse_cli_settings(args)
+    summary = train(
+        args.algorithm,
+        task,
+        env_kwargs,
+        args.out,
+        steps=steps,
+        overrides=overrides,
+        resume=args.resume,
+    )
+    print(
+        f"{args.algorithm}: {summary['env_steps']} env steps in {summary['wall_time_s']:.0f} s; "
+        f"latest checkpoint {args.out}/{summary['latest_checkpoint']}"
+    )
+    write_json(args.json, summary)
+    return 0
+
+
+# -- eval ---------------------------------------------------------------------------------------
+def _eval_args(p):
+    from wirecraft.evaluation.command import configure
+
+    configure(p, add_task_args)
+
+
+@command("eval", "evaluate a policy on the seeded protocol (metrics, failures, report)", _eval_args)
+def cmd_eval(args) -> int:
+    from wirecraft.evaluation.command import run
+
+    return run(args, task_kwargs, write_json)
 
 
 def build_parser() -> argparse.ArgumentParser:

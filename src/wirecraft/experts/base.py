@@ -9,10 +9,21 @@ and rotation in the robot base frame (rotation ``None``: hold the controller's),
 phase's position/orientation tolerances and dwell decide).  ``_init_state`` and
 ``_reset_state(mask)`` add and restart counters of its own; ``_on_advance(advanced, before)``
 acts on phase changes.
+
+Privileged state is read in one place: each control step ``act`` calls ``read_state(i)`` once
+per environment and keeps the result in ``self.views[i]`` for ``_goals`` and ``_on_advance``.
+The default reads the robot (``RobotView``: base frame, TCP, gripper, the controller's target);
+an expert that needs the task's state (the insertion expert's ``InsertionView``) extends it.
+
+Randomness (diversity) comes from ``self.rngs[i]``, one generator per environment: seeded from
+``seed`` (constructor) or ``reset(seed=...)`` as ``numpy.random.default_rng([seed, i])``, from
+fresh entropy when no seed was given.  The same seed and the same environment states give the
+same actions.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
@@ -25,6 +36,63 @@ from wirecraft.experts.fsm import Phase, VectorFSM, step_toward, unwrap_envs
 def rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
     """Angle (rad) of the rotation between rotation matrices ``a`` and ``b``."""
     return float(np.linalg.norm(rotation_error(a, b)))
+
+
+@dataclass(frozen=True)
+class RobotView:
+    """What every expert reads of its robot, once per control step; poses in the robot base
+    frame (m, rad), except ``base_pos`` / ``base_rot`` (the base frame in the world).
+
+    up: world +z in the base frame.  target_pos / target_rot: the Cartesian controller's own
+    target (it may lead the TCP).  gripper_opening: m between the pads; gripper_velocity: m/s.
+    """
+
+    base_pos: np.ndarray
+    base_rot: np.ndarray
+    up: np.ndarray
+    tcp_pos: np.ndarray
+    tcp_rot: np.ndarray
+    target_pos: np.ndarray
+    target_rot: np.ndarray
+    gripper_opening: float
+    gripper_velocity: float
+    max_opening: float
+
+    def to_base(self, points) -> np.ndarray:
+        """World points (..., 3) in the robot base frame."""
+        return (np.asarray(points, float) - self.base_pos) @ self.base_rot
+
+    def rot_to_base(self, rot) -> np.ndarray:
+        """A world rotation matrix in the robot base frame."""
+        return self.base_rot.T @ np.asarray(rot, float)
+
+
+def robot_fields(env) -> dict:
+    """The ``RobotView`` fields of environment ``env`` (a ``WireCraftEnv``), as a dict, so that
+    views of task state can extend them."""
+    model, data, robot, ctl = env.model, env.data, env.robot, env.controller
+    site = ctl.index.base_site
+    base_pos = data.site_xpos[site].copy()
+    base_rot = data.site_xmat[site].reshape(3, 3).copy()
+    tcp_pos, tcp_rot = robot.tcp_pose_base(model, data)
+    world = ctl.base_rot_world
+    return {
+        "base_pos": base_pos,
+        "base_rot": base_rot,
+        "up": base_rot[2].copy(),  # base_rot.T @ (0, 0, 1)
+        "tcp_pos": tcp_pos,
+        "tcp_rot": tcp_rot,
+        "target_pos": world.T @ (ctl.target_pos - ctl.base_pos_world),
+        "target_rot": world.T @ ctl.target_rot,
+        "gripper_opening": float(robot.gripper_opening(model, data)),
+        "gripper_velocity": float(robot.gripper_velocity(model, data)),
+        "max_opening": float(robot.max_opening),
+    }
+
+
+def read_robot(env) -> RobotView:
+    """``RobotView`` of environment ``env`` (a ``WireCraftEnv``) now."""
+    return RobotView(**robot_fields(env))
 
 
 class ScriptedExpert:
@@ -41,7 +109,7 @@ class ScriptedExpert:
     TASK: ClassVar[str]
     config_class: ClassVar[type]
 
-    def __init__(self, env_or_envs, config=None) -> None:
+    def __init__(self, env_or_envs, config=None, seed: int | None = None) -> None:
         self.envs = unwrap_envs(env_or_envs)
         name = type(self).__name__
         for env in self.envs:
@@ -51,6 +119,8 @@ class ScriptedExpert:
                 raise ValueError(f"{name} needs the {self.TASK} task")
         self.config = config or self.config_class()
         self.num_envs = len(self.envs)
+        self.rngs = [self._new_rng(seed, i) for i in range(self.num_envs)]
+        self.views: list = [None] * self.num_envs  # read_state(i) of the current control step
         self.fsm = VectorFSM(self.PHASES, self.num_envs)
         self._last_time = np.full(self.num_envs, -np.inf)  # s, to notice environment resets
         self._init_state()
@@ -64,10 +134,23 @@ class ScriptedExpert:
         del mask
 
     # -- lifecycle ---------------------------------------------------------------------------
-    def reset(self, env_ids=None) -> None:
-        """Start over (first phase, snapshots cleared) for ``env_ids`` (None: all)."""
-        self.fsm.reset(env_ids)
+    @staticmethod
+    def _new_rng(seed: int | None, i: int) -> np.random.Generator:
+        if seed is None:
+            return np.random.default_rng()
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"expert seed must be a non-negative int or None, got {seed!r}")
+        return np.random.default_rng([int(seed), i])
+
+    def reset(self, env_ids=None, seed: int | None = None) -> None:
+        """Start over (first phase, snapshots cleared) for ``env_ids`` (None: all).  ``seed``
+        re-seeds their generators (``default_rng([seed, i])``); without it they go on with
+        their streams (still deterministic if the expert was seeded)."""
         mask = self.fsm._mask(env_ids)
+        if seed is not None:
+            for i in np.flatnonzero(mask):
+                self.rngs[i] = self._new_rng(seed, int(i))
+        self.fsm.reset(mask)
         for name, shape in self.SNAPSHOTS:
             if name not in self.fsm.snapshots:
                 self.fsm.snapshots[name] = np.full((self.num_envs, *shape), np.nan)
@@ -97,6 +180,11 @@ class ScriptedExpert:
         return base.T @ (ctl.target_pos - ctl.base_pos_world), base.T @ ctl.target_rot
 
     # -- control loop ------------------------------------------------------------------------
+    def read_state(self, i):
+        """Everything the expert reads of environment ``i`` this control step (privileged
+        state); kept in ``self.views[i]``.  Subclasses extend ``RobotView``."""
+        return read_robot(self.envs[i])
+
     def _goals(self, i):
         raise NotImplementedError
 
@@ -115,10 +203,10 @@ class ScriptedExpert:
             if env.data.time < self._last_time[i]:  # the environment was reset: start over
                 self.reset([i])
             self._last_time[i] = env.data.time
+            view = self.views[i] = self.read_state(i)
             goal_pos, goal_rot, speed, gripper, own = self._goals(i)
-            tcp_pos, tcp_rot = env.robot.tcp_pose_base(env.model, env.data)
-            pos_err[i] = np.linalg.norm(goal_pos - tcp_pos)
-            target_pos, target_rot = self._ctl_target(i)
+            tcp_rot, target_pos, target_rot = view.tcp_rot, view.target_pos, view.target_rot
+            pos_err[i] = np.linalg.norm(goal_pos - view.tcp_pos)
             if goal_rot is None:  # fixed orientation: hold the controller's
                 goal_rot = target_rot
             else:

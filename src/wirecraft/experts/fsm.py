@@ -10,11 +10,16 @@ timeout).  Every array carries one row per environment:
   grasp time) and reads in later phases, so that those servo toward a reference the wire's
   deformation does not move.
 
+- ``retries[counter]``: (N,) int, how often each environment was sent back by ``retry``.
+
 A single environment is N = 1.  Each control step the expert computes, per environment, the
 distance of the end effector to its phase goal and calls ``advance_if(reached)``: an
-environment moves to the next phase once its goal has been reached (within the phase's
-tolerances) for ``dwell`` consecutive steps, or once it has spent ``timeout`` steps in the
-phase.  The last phase is terminal (it never advances).
+environment moves on once its goal has been reached (within the phase's tolerances) for
+``dwell`` consecutive steps, or once it has spent ``timeout`` steps in the phase.  It moves to
+the phase's ``next`` (default: the following phase in the list), so branches that are only
+taken sometimes (a retry, a drop) can sit in the list without being entered by default.  The
+last phase is terminal (it never advances).  ``retry(counter, target, mask, limit)`` sends
+environments back to an earlier phase at most ``limit`` times per episode.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ class Phase:
     pos_tol: m, rot_tol: rad: how close the end effector must be to the phase goal.
     dwell: consecutive control steps within tolerance before the phase advances (>= 1).
     timeout: control steps after which the phase advances anyway (None: never).
+    next: name of the phase it advances to (None: the following one in the list).
     """
 
     name: str
@@ -38,6 +44,7 @@ class Phase:
     rot_tol: float = 0.05
     dwell: int = 1
     timeout: int | None = None
+    next: str | None = None
 
     def __post_init__(self) -> None:
         if self.pos_tol < 0 or self.rot_tol < 0:
@@ -67,11 +74,19 @@ class VectorFSM:
         self.dwell_needed = np.array([p.dwell for p in phases])
         big = np.iinfo(np.int64).max
         self.timeout = np.array([big if p.timeout is None else p.timeout for p in phases])
+        last = len(phases) - 1
+        self.next_index = np.array(
+            [
+                last if i == last else (i + 1 if p.next is None else self.index(p.next))
+                for i, p in enumerate(phases)
+            ]
+        )
         self.phase = np.zeros(num_envs, dtype=np.int64)
         self.steps = np.zeros(num_envs, dtype=np.int64)
         self.dwell = np.zeros(num_envs, dtype=np.int64)
         self.timed_out = np.zeros(num_envs, dtype=bool)  # the last advance came from a timeout
         self.snapshots: dict[str, np.ndarray] = {}
+        self.retries: dict[str, np.ndarray] = {}
 
     # -- lookup ------------------------------------------------------------------------------
     def index(self, name: str) -> int:
@@ -118,6 +133,8 @@ class VectorFSM:
         self.timed_out[mask] = False
         for value in self.snapshots.values():
             value[mask] = np.nan
+        for count in self.retries.values():
+            count[mask] = 0
 
     def within(self, pos_err, rot_err) -> np.ndarray:
         """(N,) bool: errors (N,) (m, rad) within the tolerances of each env's current phase."""
@@ -141,7 +158,7 @@ class VectorFSM:
         expired = self.steps >= self.timeout[self.phase]
         advance = (settled | expired) & ~self.done
         self.timed_out[advance] = expired[advance] & ~settled[advance]
-        self.phase[advance] += 1
+        self.phase[advance] = self.next_index[self.phase[advance]]
         self.steps[advance] = 0
         self.dwell[advance] = 0
         return advance
@@ -152,6 +169,24 @@ class VectorFSM:
         self.phase[mask] = self.index(name)
         self.steps[mask] = 0
         self.dwell[mask] = 0
+
+    def retry(self, counter: str, target: str, mask, limit: int) -> np.ndarray:
+        """Send the environments in ``mask`` back to phase ``target`` unless ``counter`` has
+        already sent them back ``limit`` times this episode; count it.  Returns the (N,) mask of
+        the environments sent back (the others stay where they are: the caller lets them go
+        on)."""
+        if limit < 0:
+            raise ValueError(f"retry {counter!r}: limit must be >= 0, got {limit}")
+        mask = self._mask(mask)
+        count = self.retries.setdefault(counter, np.zeros(self.num_envs, dtype=np.int64))
+        allowed = mask & (count < limit)
+        count[allowed] += 1
+        self.goto(target, allowed)
+        return allowed
+
+    def retry_count(self, counter: str) -> np.ndarray:
+        """(N,) how often ``counter`` sent each environment back since its last reset."""
+        return self.retries.get(counter, np.zeros(self.num_envs, dtype=np.int64)).copy()
 
     # -- snapshots ---------------------------------------------------------------------------
     def snapshot(self, name: str, values, mask) -> None:

@@ -1,0 +1,177 @@
+"""``wirecraft eval``: the command's flags and what it does with them (cli.py stays thin)."""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import time
+from pathlib import Path
+
+MAX_AUTO_VIDEOS = 6
+# The reference protocol (kept here as literals so that ``wirecraft --help`` imports nothing
+# heavy; a test checks them against seeds.py and retention.py).
+REFERENCE_SEEDS = 4
+REFERENCE_EPISODES = 16
+DEFAULT_FORCE = 2.0  # N
+
+
+def configure(p: argparse.ArgumentParser, add_task_args) -> None:
+    add_task_args(p)
+    p.add_argument(
+        "--policy",
+        default="scripted",
+        help="scripted, random, zero, an RL run directory (wirecraft_rl.json) or a LeRobot "
+        "pretrained-policy directory",
+    )
+    p.add_argument("--seeds", type=int, default=REFERENCE_SEEDS, help="evaluation seeds")
+    p.add_argument("--episodes", type=int, default=REFERENCE_EPISODES, help="episodes per seed")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="evaluate on a fresh seed list derived from this number (held-out check) instead "
+        "of the frozen public list",
+    )
+    p.add_argument("--episode-seconds", type=float, default=8.0, help="episode length (s)")
+    p.add_argument(
+        "--retain-force",
+        type=float,
+        default=DEFAULT_FORCE,
+        help="retention check: pull on the seated plug, newtons",
+    )
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=1, help="worker processes")
+    where.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster ('local': here)")
+    p.add_argument("--batch", type=int, default=None, help="environments stepped together")
+    p.add_argument("--json", metavar="PATH", help="write the results (metrics, episodes)")
+    p.add_argument("--traces", metavar="PATH", help="write per-step traces (Parquet)")
+    p.add_argument("--video", metavar="DIR", help="write MP4 videos of chosen episodes")
+    p.add_argument(
+        "--video-episodes",
+        default="auto",
+        help="auto (first success + first of each failure label), all, or SEED:EPISODE,...",
+    )
+    p.add_argument("--report", metavar="DIR", help="add this run to the HTML report in DIR")
+    p.add_argument("--device", default="cpu", help="torch device for learned policies")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def parse_video_spec(spec: str) -> str | list[tuple[int, int]]:
+    """``auto``, ``all`` or a list of (seed, episode) from ``--video-episodes``."""
+    if spec in ("auto", "all"):
+        return spec
+    wanted = []
+    for item in spec.split(","):
+        try:
+            seed, episode = (int(v) for v in item.split(":"))
+        except ValueError:
+            raise ValueError(
+                f"--video-episodes: expected auto, all or SEED:EPISODE,..., got {spec!r}"
+            ) from None
+        wanted.append((seed, episode))
+    return wanted
+
+
+def choose_videos(results, spec: str) -> list:
+    """The ``EpisodeResult``s to film for ``--video-episodes``."""
+    wanted = parse_video_spec(spec)
+    if wanted == "all":
+        return list(results)
+    if wanted == "auto":
+        chosen, seen = [], set()
+        for r in results:
+            key = "success" if r.summary["success"] else r.summary["failure"]
+            if key not in seen:
+                seen.add(key)
+                chosen.append(r)
+        return chosen[:MAX_AUTO_VIDEOS]
+    by_key = {(r.spec.seed_index, r.spec.episode): r for r in results}
+    missing = [w for w in wanted if w not in by_key]
+    if missing:
+        raise ValueError(f"--video-episodes: no such episodes {missing} in this evaluation")
+    return [by_key[w] for w in wanted]
+
+
+def print_summary(payload: dict, seconds: float) -> None:
+    proto = payload["protocol"]
+    which = (
+        f"held-out list --seed {proto['held_out_seed']}"
+        if proto["held_out_seed"] is not None
+        else f"public seeds {proto['version']}"
+    )
+    print(
+        f"{payload['variant']} · policy {payload['policy']} · {proto['seeds']} seeds x "
+        f"{proto['episodes_per_seed']} episodes x {proto['episode_steps']} steps ({which})"
+    )
+    for name, value in payload["metrics"].items():
+        per_seed = ", ".join("-" if v is None else f"{100 * v:.0f}" for v in value["per_seed"])
+        print(
+            f"  {name:15s} {100 * value['mean']:5.1f} +/- {100 * value['std']:4.1f} %"
+            f"   (per seed: {per_seed})"
+        )
+    failures = ", ".join(f"{k} {v}" for k, v in payload["failures"].items()) or "none"
+    print(f"  failures: {failures}")
+    print(f"  ({seconds:.0f} s)")
+
+
+def run(args, task_kwargs, write_json) -> int:
+    from wirecraft.evaluation import report as report_mod
+    from wirecraft.evaluation.protocol import run_evaluation
+    from wirecraft.evaluation.traces import write_traces
+
+    family, env_kwargs = task_kwargs(args)
+    wanted = parse_video_spec(args.video_episodes)  # a typo fails now, not after the run
+    if isinstance(wanted, list):
+        outside = [w for w in wanted if not (0 <= w[0] < args.seeds and 0 <= w[1] < args.episodes)]
+        if outside:
+            raise ValueError(f"--video-episodes: no such episodes {outside} in this evaluation")
+    start = time.time()
+    evaluation = run_evaluation(
+        family,
+        args.policy,
+        seeds=args.seeds,
+        episodes=args.episodes,
+        workers=args.workers,
+        seed=args.seed,
+        episode_seconds=args.episode_seconds,
+        retain_force=args.retain_force,
+        batch=args.batch,
+        ray_address=args.ray,
+        progress=not args.quiet,
+        policy_kwargs={"device": args.device} if args.device != "cpu" else None,
+        **env_kwargs,
+    )
+    payload = evaluation.payload
+    print_summary(payload, time.time() - start)
+    write_json(args.json, payload)
+    if args.traces:
+        print(f"wrote {write_traces(args.traces, family, evaluation.results)}")
+    videos: dict[str, Path] = {}
+    if args.video or args.report:
+        from wirecraft.evaluation.video import record_episode
+
+        slug = report_mod.run_slug(payload)
+        folder = Path(args.video) if args.video else Path(args.report) / "videos" / slug
+        for result in choose_videos(evaluation.results, args.video_episodes):
+            spec, summary = result.spec, result.summary
+            outcome = "success" if summary["success"] else summary["failure"]
+            path = folder / f"seed{spec.seed_index}_ep{spec.episode}_{outcome}.mp4"
+            replay = record_episode(evaluation.config, spec, summary, path)
+            if not replay["matches"]:
+                print(f"warning: the replay of {path.name} did not reproduce its outcome")
+            videos[f"seed {spec.seed_index}, episode {spec.episode}: {outcome}"] = path
+        if videos:
+            print(f"wrote {len(videos)} videos to {folder}")
+    if args.report:
+        folder = Path(args.report)
+        slug = report_mod.run_slug(payload)
+        in_report = {}
+        for caption, path in videos.items():
+            target = folder / "videos" / slug / path.name
+            if path.resolve() != target.resolve():
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(path, target)
+            in_report[caption] = target
+        report_mod.add_run(folder, evaluation, in_report)
+        print(f"wrote {report_mod.build(folder)}")
+    return 0

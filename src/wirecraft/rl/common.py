@@ -1,0 +1,206 @@
+"""What the RL baselines share: the run directory and its ``wirecraft_rl.json``, episode
+statistics from a vector environment's SAME_STEP autoreset, and the progress table.
+
+A run directory holds:
+    wirecraft_rl.json   algorithm, task, environment keywords, config, observation
+                        normalisation, checkpoints (latest last), env steps and wall time so far
+    checkpoints/        rsl-rl ``model_<iteration>.pt`` or skrl ``agent_<vector step>.pt``
+    progress.csv        one row per iteration / logging period: env steps, wall time, success
+    events.out.tfevents.*  TensorBoard logs
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+RUN_FILE = "wirecraft_rl.json"
+RUN_FORMAT = 1
+CHECKPOINT_DIR = "checkpoints"
+PROGRESS_FILE = "progress.csv"
+EPISODE_FLAGS = ("success", "reach_success", "insert_success")
+
+
+def write_json_atomic(path: Path, payload: dict) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(payload, indent=2, sort_keys=True) + "\n")
+    os.replace(tmp, path)
+
+
+def find_run_dir(path: str | os.PathLike) -> Path:
+    """The run directory of ``path``: the directory itself, or the one holding a checkpoint
+    file (directly or in its ``checkpoints/``)."""
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"no such run directory or checkpoint: {path}")
+    candidates = [path] if path.is_dir() else []
+    candidates += [path.parent, path.parent.parent]
+    for candidate in candidates:
+        if (candidate / RUN_FILE).is_file():
+            return candidate
+    raise ValueError(f"{path} is not in an RL run directory (no {RUN_FILE} found)")
+
+
+def read_run(run_dir: str | os.PathLike) -> dict:
+    run_dir = Path(run_dir)
+    try:
+        run = json.loads((run_dir / RUN_FILE).read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise ValueError(f"cannot read {run_dir / RUN_FILE}: {err}") from None
+    if run.get("format") != RUN_FORMAT:
+        raise ValueError(f"{run_dir / RUN_FILE}: unknown format {run.get('format')!r}")
+    return run
+
+
+def checkpoint_path(run_dir: Path, run: dict, path: str | os.PathLike | None = None) -> Path:
+    """``path`` when it is a checkpoint file, else the run's latest checkpoint."""
+    if path is not None and Path(path).is_file():
+        return Path(path)
+    latest = run.get("latest_checkpoint")
+    if not latest:
+        raise ValueError(f"{run_dir}: the run has no checkpoint yet")
+    return run_dir / latest
+
+
+def batch_obs(obs):
+    """A numpy observation (batched or not) as float arrays with a leading batch axis."""
+    if isinstance(obs, dict):
+        return {k: v if isinstance(v, (tuple, list)) else np.asarray(v) for k, v in obs.items()}
+    obs = np.asarray(obs, dtype=np.float64)
+    return obs[None] if obs.ndim == 1 else obs
+
+
+def env_control(env) -> str:
+    """The control mode of a single environment, a wrapped one or a WireCraft vector env."""
+    if hasattr(env, "envs"):
+        return env.envs[0].control_name
+    return env.unwrapped.control_name
+
+
+def final_observations(obs, infos: dict, done: np.ndarray):
+    """Observations with the rows of finished environments replaced by their final
+    observation (SAME_STEP autoreset puts the first observation of the next episode in
+    ``obs``).  Works for array and dict observations."""
+    if not done.any() or "final_obs" not in infos:
+        return obs
+    final = infos["final_obs"]
+    ids = np.flatnonzero(done)
+    if isinstance(obs, dict):
+        out = {k: (list(v) if isinstance(v, (tuple, list)) else v.copy()) for k, v in obs.items()}
+        for i in ids:
+            for key in out:
+                out[key][i] = final[i][key]
+        return out
+    out = obs.copy()
+    for i in ids:
+        out[i] = final[i]
+    return out
+
+
+class EpisodeTracker:
+    """Per-environment episode statistics from vector-env steps: return (unscaled), length,
+    the final success flags, whether each flag was ever true, and divergence."""
+
+    def __init__(self, num_envs: int) -> None:
+        self.num_envs = num_envs
+        self.returns = np.zeros(num_envs)
+        self.lengths = np.zeros(num_envs, int)
+        self.ever = {k: np.zeros(num_envs, bool) for k in EPISODE_FLAGS}
+
+    def step(self, rewards, terminated, truncated, infos) -> list[dict[str, float]]:
+        """Account for one step; returns one record per episode that ended in it."""
+        self.returns += rewards
+        self.lengths += 1
+        done = np.asarray(terminated) | np.asarray(truncated)
+        final = infos.get("final_info", {})
+        flags = {}
+        for key in EPISODE_FLAGS:
+            now = np.asarray(infos.get(key, np.zeros(self.num_envs, bool)), bool)
+            if key in final:  # a finished env's own flags are in final_info, not the reset's
+                now = np.where(done, np.asarray(final[key], bool), now)
+            self.ever[key] |= now
+            flags[key] = now
+        diverged = np.asarray(final.get("diverged", np.zeros(self.num_envs, bool)), bool)
+        records = []
+        for i in np.flatnonzero(done):
+            record = {"return": float(self.returns[i]), "length": int(self.lengths[i])}
+            for key in EPISODE_FLAGS:
+                record[key] = float(flags[key][i])
+                record[f"{key}_any"] = float(self.ever[key][i])
+            record["diverged"] = float(diverged[i])
+            records.append(record)
+            self.returns[i] = 0.0
+            self.lengths[i] = 0
+            for key in EPISODE_FLAGS:
+                self.ever[key][i] = False
+        return records
+
+
+EPISODE_KEYS = (
+    "return",
+    "length",
+    *EPISODE_FLAGS,
+    *(f"{k}_any" for k in EPISODE_FLAGS),
+    "diverged",
+)
+PROGRESS_FIELDS = ("iteration", "env_steps", "wall_time_s", "env_steps_per_s", "episodes") + tuple(
+    f"mean_{k}" for k in EPISODE_KEYS
+)
+
+
+def summarize(records: list[dict[str, float]]) -> dict[str, float]:
+    """Means of the episode records (NaN where there were none)."""
+    out = {"episodes": len(records)}
+    for key in EPISODE_KEYS:
+        out[f"mean_{key}"] = float(np.mean([r[key] for r in records])) if records else float("nan")
+    return out
+
+
+class ProgressTable:
+    """``progress.csv`` of a run: appended row by row, header written once."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+
+    def append(self, row: dict[str, Any]) -> None:
+        new = not self.path.exists()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with self.path.open("a", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=PROGRESS_FIELDS, extrasaction="ignore")
+            if new:
+                writer.writeheader()
+            writer.writerow({k: _fmt(row.get(k, "")) for k in PROGRESS_FIELDS})
+
+    def rows(self) -> list[dict[str, float]]:
+        if not self.path.exists():
+            return []
+        with self.path.open() as f:
+            return [
+                {k: float(v) if v != "" else float("nan") for k, v in r.items()}
+                for r in csv.DictReader(f)
+            ]
+
+
+def _fmt(value):
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return value
+
+
+class WallClock:
+    """Wall time of a run, continued across resumes."""
+
+    def __init__(self, offset: float = 0.0) -> None:
+        self.offset = float(offset)
+        self.start = time.monotonic()
+
+    def __call__(self) -> float:
+        return self.offset + time.monotonic() - self.start

@@ -1,0 +1,102 @@
+"""The LeRobot adapter: our observations in, the dataset's joint-target action out."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import wirecraft
+from wirecraft.evaluation import protocol
+from wirecraft.evaluation.policies import joint_action, load_policy, policy_env_kwargs
+
+IMAGE = 32
+
+
+def test_joint_action_moves_the_servo_targets_toward_absolute_targets():
+    env = wirecraft.make("insertion", control="joint").unwrapped
+    env.reset(seed=0)
+    ctl = env.controller
+    step = ctl.max_step * ctl.config.joint_speed_fraction
+    offsets = np.array([0.5, -0.25, 0.0, 3.0, -3.0, 0.1])  # in rated steps; +-3 saturate
+    gap = 0.3 * env.robot.max_opening
+    action = joint_action(env, np.concatenate([ctl.joint_targets + offsets * step, [gap]]))
+    assert np.allclose(action[:6], np.clip(offsets, -1, 1))
+    before = ctl.joint_targets.copy()
+    env.step(action)
+    moved = (ctl.joint_targets - before) / step
+    assert np.allclose(moved[:3], offsets[:3], atol=1e-9)  # unsaturated joints land on target
+    assert ctl.gripper_target == pytest.approx(gap)
+    with pytest.raises(ValueError, match="7 entries"):
+        joint_action(env, np.zeros(6))
+
+
+@pytest.fixture(scope="module")
+def tiny_act(tmp_path_factory):
+    """A randomly initialised, tiny ACT policy saved as LeRobot saves a trained one."""
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("lerobot")
+    from lerobot.configs.types import FeatureType, PolicyFeature
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.policies.act.modeling_act import ACTPolicy
+    from lerobot.policies.factory import make_pre_post_processors
+
+    visual = PolicyFeature(type=FeatureType.VISUAL, shape=(3, IMAGE, IMAGE))
+    config = ACTConfig(
+        input_features={
+            "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(7,)),
+            "observation.images.cam_side": visual,
+            "observation.images.cam_wrist": visual,
+        },
+        output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(7,))},
+        device="cpu",
+        chunk_size=4,
+        n_action_steps=4,
+        dim_model=32,
+        n_heads=2,
+        dim_feedforward=64,
+        n_encoder_layers=1,
+        n_decoder_layers=1,
+        use_vae=False,
+        pretrained_backbone_weights=None,
+    )
+    torch.manual_seed(0)
+    policy = ACTPolicy(config)
+    image_stats = {"mean": torch.full((3, 1, 1), 0.5), "std": torch.full((3, 1, 1), 0.25)}
+    stats = {
+        "observation.state": {"mean": torch.zeros(7), "std": torch.ones(7)},
+        "action": {"mean": torch.zeros(7), "std": torch.full((7,), 0.1)},
+        "observation.images.cam_side": image_stats,
+        "observation.images.cam_wrist": image_stats,
+    }
+    pre, post = make_pre_post_processors(config, dataset_stats=stats)
+    folder = tmp_path_factory.mktemp("act")
+    for part in (policy, pre, post):
+        part.save_pretrained(folder)
+    return folder
+
+
+@pytest.mark.slow
+def test_a_saved_lerobot_policy_drives_joint_controlled_environments(tiny_act):
+    kwargs = policy_env_kwargs(str(tiny_act), "insertion")
+    assert kwargs == {"control": "joint", "obs_mode": "state_rgb", "image_size": IMAGE}
+    venv = wirecraft.make_vec("insertion", 2, threads=1, **kwargs)
+    obs, _ = venv.reset(seed=[1, 2])
+    policy = load_policy(str(tiny_act), venv)
+    assert policy.control == "joint"
+    batch = policy._batch(obs)
+    for i, env in enumerate(venv.envs):
+        expected = env.robot.dataset_state(env.model, env.data)  # the dataset's state
+        assert np.allclose(batch["observation.state"][i].numpy(), expected, atol=1e-6)
+    assert tuple(batch["observation.images.cam_side"].shape) == (2, 3, IMAGE, IMAGE)
+    assert float(batch["observation.images.cam_wrist"].max()) <= 1.0
+    policy.reset()
+    for _ in range(2):
+        actions = policy.act(obs)
+        assert actions.shape == (2, 7) and np.all(np.abs(actions) <= 1.0)
+        obs, *_ = venv.step(actions)
+    venv.close()
+    payload = protocol.evaluate(
+        "insertion", str(tiny_act), seeds=1, episodes=1, episode_seconds=0.1, progress=False
+    )
+    assert payload["env_kwargs"]["control"] == "joint"
+    assert payload["episodes"][0]["failure"] == "no_grasp"

@@ -1,0 +1,438 @@
+"""RL baselines (wirecraft.rl): configuration checks, the rsl-rl adapter against the vector env
+it wraps, short real training runs of PPO, SACfD and vision PPO with checkpoint round trips
+(actions recomputed by hand from the saved tensors) and resumption."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+
+import numpy as np
+import pytest
+
+import wirecraft
+from wirecraft.rl import RUN_FILE, load_policy, train
+from wirecraft.rl.common import ProgressTable, final_observations
+from wirecraft.rl.config import PPOConfig, SACfDConfig, VisionPPOConfig, parse_override
+
+SHORT = {"episode_seconds": 0.1}  # 6 control steps per episode
+
+
+def _elu(x):
+    return np.where(x > 0, x, np.expm1(np.minimum(x, 0)))
+
+
+def _mlp_numpy(state: dict, prefix: str, x: np.ndarray, last_activation: bool = False):
+    """Linear layers ``prefix.<i>.weight/bias`` with ELU between them, in numpy."""
+    indices = sorted({int(k[len(prefix) :].split(".")[0]) for k in state if k.startswith(prefix)})
+    for n, i in enumerate(indices):
+        w = state[f"{prefix}{i}.weight"].double().numpy()
+        b = state[f"{prefix}{i}.bias"].double().numpy()
+        x = x @ w.T + b
+        if n < len(indices) - 1 or last_activation:
+            x = _elu(x)
+    return x
+
+
+def _scalars(run_dir, prefix: str) -> dict[str, list[float]]:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(run_dir))
+    acc.Reload()
+    return {
+        tag: [e.value for e in acc.Scalars(tag)]
+        for tag in acc.Tags()["scalars"]
+        if tag.startswith(prefix)
+    }
+
+
+# -- configuration ------------------------------------------------------------------------------
+def test_configs_carry_the_reference_defaults_and_reject_bad_values():
+    ppo = PPOConfig()
+    assert ppo.actor_hidden_dims == (256, 128, 64) and ppo.activation == "elu"
+    assert (ppo.clip_param, ppo.entropy_coef, ppo.value_loss_coef) == (0.2, 0.01, 1.0)
+    assert (ppo.learning_rate, ppo.desired_kl, ppo.num_steps_per_env) == (5e-4, 0.01, 128)
+    assert (ppo.num_mini_batches, ppo.num_learning_epochs, ppo.max_grad_norm) == (8, 5, 1.0)
+    vision = VisionPPOConfig()
+    assert (vision.clip_param, vision.desired_kl, vision.entropy_coef) == (0.1, 0.005, 0.0)
+    assert (vision.value_loss_coef, vision.learning_rate, vision.init_std) == (0.3, 1e-4, 0.05)
+    assert (vision.num_envs, vision.max_iterations, vision.queries_per_camera) == (64, 600, 8)
+    sac = SACfDConfig()
+    assert (sac.batch_size, sac.replay_per_env, sac.warmup_steps) == (256, 8000, 5000)
+    assert (sac.target_entropy, sac.initial_alpha, sac.reward_scale) == (-7.0, 0.1, 0.01)
+    with pytest.raises(ValueError, match="clip_param"):
+        PPOConfig(clip_param=1.5)
+    with pytest.raises(ValueError, match="actor_hidden_dims"):
+        PPOConfig(actor_hidden_dims=())
+    with pytest.raises(ValueError, match="demo_ratio"):
+        SACfDConfig(demo_ratio=2.0)
+    with pytest.raises(ValueError, match="token_dim"):
+        VisionPPOConfig(token_dim=10, attention_heads=4)
+    with pytest.raises(ValueError, match="unknown setting"):
+        ppo.updated(no_such_field=1)
+
+
+def test_bc_weight_follows_the_annealing_schedule():
+    cfg = SACfDConfig()  # 2.5 -> 0.5 between 80k and 250k env steps
+    assert cfg.bc_weight(0) == cfg.bc_weight(80_000) == 2.5
+    assert cfg.bc_weight(165_000) == pytest.approx(1.5)
+    assert cfg.bc_weight(250_000) == cfg.bc_weight(10**7) == 0.5
+
+
+def test_overrides_parse_to_the_field_types():
+    cfg = PPOConfig()
+    assert parse_override("actor_hidden_dims=64,32", cfg) == ("actor_hidden_dims", (64, 32))
+    assert parse_override("learning_rate=1e-3", cfg) == ("learning_rate", 1e-3)
+    assert parse_override("obs_normalization=false", cfg) == ("obs_normalization", False)
+    with pytest.raises(ValueError, match="unknown setting"):
+        parse_override("lr=1", cfg)
+    with pytest.raises(ValueError, match="cannot read"):
+        parse_override("num_envs=many", cfg)
+
+
+# -- the rsl-rl adapter -------------------------------------------------------------------------
+class _Recorder:
+    """Forwards to a vector env and keeps what its ``reset``/``step`` returned."""
+
+    def __init__(self, venv) -> None:
+        self.venv = venv
+        self.returned = []
+
+    def __getattr__(self, name):
+        return getattr(self.venv, name)
+
+    def reset(self, **kwargs):
+        self.returned.append(self.venv.reset(**kwargs))
+        return self.returned[-1]
+
+    def step(self, actions):
+        self.returned.append(self.venv.step(actions))
+        return self.returned[-1]
+
+
+def test_adapter_matches_the_vector_env_and_flags_time_outs():
+    import torch
+
+    from wirecraft.rl.ppo import make_vec_env_adapter
+
+    n, scale = 3, 0.5
+    venv = _Recorder(wirecraft.make_vec("insertion", n, threads=1, **SHORT))
+    adapter = make_vec_env_adapter(venv, reward_scale=scale, seed=4)
+    obs = adapter.get_observations()
+    assert obs["policy"].dtype == torch.float32 and tuple(obs["policy"].shape) == (n, 42)
+    np.testing.assert_allclose(obs["policy"].numpy(), venv.returned[0][0], rtol=1e-6)
+    rng = np.random.default_rng(0)
+    saw_time_out = False
+    for _ in range(7):
+        actions = rng.uniform(-1.5, 1.5, (n, 7))
+        obs, rewards, dones, extras = adapter.step(torch.as_tensor(actions))
+        env_obs, env_rewards, _, env_truncated, _ = venv.returned[-1]
+        np.testing.assert_allclose(obs["policy"].numpy(), env_obs, rtol=1e-6)
+        np.testing.assert_allclose(rewards.numpy(), env_rewards * scale, rtol=1e-6)
+        np.testing.assert_array_equal(dones.numpy().astype(bool), env_truncated)
+        np.testing.assert_array_equal(extras["time_outs"].numpy().astype(bool), env_truncated)
+        if env_truncated.any():
+            saw_time_out = True
+            log = extras["log"]
+            assert len(log["Episode/success"]) == int(env_truncated.sum())
+            assert set(log["Episode/length"].tolist()) == {6.0}
+    assert saw_time_out
+    assert adapter.env_steps == 7 * n
+    assert adapter.episode_length_buf.tolist() == [1] * n  # 7 steps = one 6-step episode + 1
+
+
+def test_final_observations_replace_rows_of_finished_envs():
+    obs = np.zeros((3, 2))
+    final = np.empty(3, dtype=object)
+    final[1] = np.array([7.0, 8.0])
+    out = final_observations(obs, {"final_obs": final}, np.array([False, True, False]))
+    np.testing.assert_array_equal(out, [[0, 0], [7, 8], [0, 0]])
+    assert obs[1, 0] == 0  # not modified in place
+
+
+def test_demo_mixing_memory_draws_the_demo_ratio():
+    import gymnasium as gym
+    import torch
+
+    from wirecraft.rl.sacfd import DemoMixingMemory, _memory
+
+    obs_space = gym.spaces.Box(-1, 1, (2,))
+    act_space = gym.spaces.Box(-1, 1, (1,))
+    demos = _memory(50, 1, obs_space, act_space, replacement=True)
+    demos.add_samples(
+        observations=torch.ones(50, 2),
+        next_observations=torch.ones(50, 2),
+        actions=torch.ones(50, 1),
+        rewards=torch.ones(50, 1),
+        terminated=torch.zeros(50, 1, dtype=torch.bool),
+    )
+    memory = _memory(20, 2, obs_space, act_space, DemoMixingMemory, demos=demos, demo_ratio=0.25)
+    for _ in range(10):
+        memory.add_samples(
+            observations=torch.zeros(2, 2),
+            next_observations=torch.zeros(2, 2),
+            actions=torch.zeros(2, 1),
+            rewards=torch.zeros(2, 1),
+            terminated=torch.zeros(2, 1, dtype=torch.bool),
+        )
+    obs, states = memory.sample(["observations", "states"], batch_size=16)[0]
+    assert states is None
+    assert obs.shape == (16, 2) and int(obs[:, 0].sum()) == 4  # a quarter from the demos
+
+
+# -- training runs ------------------------------------------------------------------------------
+PPO_TINY = {
+    "num_envs": 3,
+    "num_steps_per_env": 8,
+    "actor_hidden_dims": (16, 8),
+    "critic_hidden_dims": (16,),
+    "num_mini_batches": 2,
+    "num_learning_epochs": 2,
+    "save_interval": 100,
+    "threads": 1,
+}
+
+
+@pytest.mark.slow
+def test_ppo_trains_saves_loads_and_resumes(tmp_path):
+    import torch
+
+    run_dir = tmp_path / "ppo"
+    summary = train("ppo", "insertion", SHORT, run_dir, 48, overrides=PPO_TINY, progress=False)
+    assert summary["env_steps"] == 48 and summary["latest_checkpoint"] == "checkpoints/model_1.pt"
+    run = json.loads((run_dir / RUN_FILE).read_text())
+    assert (run["algorithm"], run["control"], run["obs"]["dim"], run["action_dim"]) == (
+        "ppo",
+        "cartesian",
+        42,
+        7,
+    )
+    losses = _scalars(run_dir, "Loss/")
+    assert {"Loss/value", "Loss/surrogate", "Loss/entropy"} <= set(losses)
+    assert all(math.isfinite(v) for values in losses.values() for v in values)
+
+    # round trip: the loaded policy's actions are the saved actor's mean, by hand
+    venv = wirecraft.make_vec("insertion", 2, threads=1, **SHORT)
+    obs, _ = venv.reset(seed=1)
+    policy = load_policy(run_dir, venv)
+    assert policy.control == "cartesian"
+    from wirecraft.rl import policy_env_kwargs
+
+    assert policy_env_kwargs(run_dir) == {"control": "cartesian", "obs_mode": "state"}
+    state = torch.load(run_dir / "checkpoints/model_1.pt", weights_only=False)["actor_state_dict"]
+    mean, std = state["obs_normalizer._mean"].double().numpy(), state["obs_normalizer._std"]
+    x = (obs - mean) / (std.double().numpy() + 1e-2)
+    expected = np.clip(_mlp_numpy(state, "mlp.", x), -1, 1)
+    np.testing.assert_allclose(policy.act(obs), expected, atol=1e-5)
+    np.testing.assert_array_equal(
+        load_policy(run_dir / "checkpoints/model_1.pt").act(obs), policy.act(obs)
+    )
+    assert policy.act(obs[0]).shape == (1, 7)
+
+    # resume: iterations 2 and 3 follow the saved ones, normalizer statistics carry over
+    train("ppo", "insertion", None, run_dir, steps=96, resume=True, progress=False)
+    run = json.loads((run_dir / RUN_FILE).read_text())
+    assert run["iterations_done"] == 4 and run["env_steps"] == 96
+    assert run["latest_checkpoint"] == "checkpoints/model_3.pt"
+    rows = ProgressTable(run_dir / "progress.csv").rows()
+    assert [r["iteration"] for r in rows] == [0, 1, 2, 3]
+    assert [r["env_steps"] for r in rows] == [24, 48, 72, 96]
+    first = torch.load(run_dir / "checkpoints/model_1.pt", weights_only=False)
+    later = torch.load(run_dir / "checkpoints/model_3.pt", weights_only=False)
+    assert later["iter"] == 3
+    count = "obs_normalizer.count"
+    assert int(later["actor_state_dict"][count]) == 2 * int(first["actor_state_dict"][count])
+
+    # rollouts of the policy as a dataset in the shared schema, source "rl"
+    from wirecraft.datasets.schema import SOURCE_KEY, SOURCES
+    from wirecraft.datasets.writer import load_dataset
+    from wirecraft.rl.record import record_rollouts
+
+    written = record_rollouts(run_dir, tmp_path / "data", 1, image_size=32, progress=False)
+    assert written == {"episodes": 1, "frames": 3, "successes": 0}  # 6 steps at 30 fps
+    dataset = load_dataset(tmp_path / "data")
+    assert dataset.num_episodes == 1 and dataset.num_frames == 3
+    assert {int(dataset[i][SOURCE_KEY]) for i in range(3)} == {SOURCES.index("rl")}
+
+    with pytest.raises(ValueError, match="--resume"):
+        train("ppo", "insertion", None, run_dir, steps=96, progress=False)
+    with pytest.raises(ValueError, match="keeps its settings"):
+        train("ppo", "insertion", None, run_dir, overrides={"seed": 5}, resume=True)
+    with pytest.raises(ValueError, match="control"):
+        load_policy(run_dir, wirecraft.make("insertion", control="joint"))
+
+
+@pytest.mark.slow
+def test_sacfd_trains_with_demonstrations_saves_loads_and_resumes(tmp_path):
+    import torch
+
+    run_dir = tmp_path / "sac"
+    settings = {
+        "num_envs": 2,
+        "hidden_dims": (16, 16),
+        "batch_size": 16,
+        "replay_per_env": 64,
+        "warmup_steps": 8,
+        "demo_transitions": 24,
+        "demo_success_only": False,  # 6-step episodes: the expert cannot finish
+        "checkpoint_every_steps": 20,
+        "log_every_steps": 10,
+        "updates_per_env_step": 0.5,
+        "threads": 1,
+    }
+    summary = train("sacfd", "insertion", SHORT, run_dir, 20, overrides=settings, progress=False)
+    assert summary["env_steps"] == 20 and summary["latest_checkpoint"] == "checkpoints/agent_10.pt"
+    demos = torch.load(run_dir / "demos.pt", weights_only=True)
+    assert demos["observations"].shape == (24, 42) and demos["actions"].shape == (24, 7)
+    assert demos["actions"].abs().max() <= 1.0  # the expert's (clipped) actions
+    losses = _scalars(run_dir, "Loss")
+    assert {"Loss / Policy loss", "Loss / Critic loss", "Loss / BC loss"} <= set(losses)
+    assert all(math.isfinite(v) for values in losses.values() for v in values)
+
+    venv = wirecraft.make_vec("insertion", 2, threads=1, **SHORT)
+    obs, _ = venv.reset(seed=2)
+    policy = load_policy(run_dir, venv)
+    saved = torch.load(run_dir / "checkpoints/agent_10.pt", weights_only=False)
+    scaler = saved["observation_preprocessor"]
+    mean = scaler["running_mean"].numpy()
+    x = np.clip((obs - mean) / (np.sqrt(scaler["running_variance"].numpy()) + 1e-8), -5, 5)
+    hidden = _mlp_numpy(saved["policy"], "net.", x, last_activation=True)
+    w, b = saved["policy"]["mean_head.weight"], saved["policy"]["mean_head.bias"]
+    expected = np.tanh(hidden @ w.double().numpy().T + b.double().numpy())
+    np.testing.assert_allclose(policy.act(obs), expected, atol=1e-5)
+    assert "entropy" in saved  # the learned temperature is checkpointed
+
+    train("sacfd", "insertion", None, run_dir, steps=40, resume=True, progress=False)
+    run = json.loads((run_dir / RUN_FILE).read_text())
+    assert run["env_steps"] == 40 and run["latest_checkpoint"] == "checkpoints/agent_20.pt"
+    assert [r["env_steps"] for r in ProgressTable(run_dir / "progress.csv").rows()] == [
+        10,
+        20,
+        30,
+        40,
+    ]
+
+
+@pytest.mark.slow
+def test_vision_ppo_clones_the_expert_then_fine_tunes(tmp_path):
+    run_dir = tmp_path / "vision"
+    settings = {
+        "num_envs": 2,
+        "num_steps_per_env": 4,
+        "actor_hidden_dims": (32,),
+        "critic_hidden_dims": (16,),
+        "num_mini_batches": 2,
+        "num_learning_epochs": 1,
+        "queries_per_camera": 2,
+        "token_dim": 8,
+        "attention_heads": 2,
+        "bc_transitions": 24,
+        "bc_epochs": 8,
+        "bc_batch_size": 12,
+        "bc_learning_rate": 3e-3,
+        "threads": 1,
+    }
+    env_kwargs = {**SHORT, "image_size": 24}
+    train("vision-ppo", "insertion", env_kwargs, run_dir, 8, overrides=settings, progress=False)
+    run = json.loads((run_dir / RUN_FILE).read_text())
+    assert run["env_kwargs"]["obs_mode"] == "state_rgb"
+    bc = run["behaviour_cloning"]
+    assert bc["teacher"] == "scripted expert" and bc["transitions"] == 24
+    assert bc["epoch_losses"][-1] < bc["epoch_losses"][0]
+    losses = _scalars(run_dir, "Loss/")
+    assert all(math.isfinite(v) for values in losses.values() for v in values)
+
+    env = wirecraft.make("insertion", obs_mode="rgb", image_size=24, **SHORT)
+    obs, _ = env.reset(seed=3)
+    policy = load_policy(run_dir, env)
+    again = load_policy(run_dir / run["latest_checkpoint"], env)
+    actions = policy.act(obs)
+    assert actions.shape == (1, 7) and np.all(np.abs(actions) <= 1)
+    np.testing.assert_array_equal(actions, again.act(obs))
+    from wirecraft.rl import policy_env_kwargs
+
+    assert policy_env_kwargs(run_dir) == {
+        "control": "cartesian",
+        "obs_mode": "state_rgb",
+        "image_size": 24,
+    }
+    with pytest.raises(ValueError, match="24x24"):
+        policy.act({**obs, "rgb_side": np.zeros((32, 32, 3), np.uint8)})
+
+    train("vision-ppo", "insertion", None, run_dir, steps=16, resume=True, progress=False)
+    assert json.loads((run_dir / RUN_FILE).read_text())["iterations_done"] == 2
+
+
+def test_vision_encoder_pools_each_camera_into_its_queries():
+    import torch
+
+    from wirecraft.rl.vision import VisualEncoder
+
+    cfg = VisionPPOConfig(queries_per_camera=3, token_dim=8, attention_heads=2)
+    encoder = VisualEncoder(cfg, image_size=32, proprio_dim=14)
+    obs = {
+        "rgb_side": torch.zeros(5, 32, 32, 3, dtype=torch.uint8),
+        "rgb_wrist": torch.full((5, 32, 32, 3), 255, dtype=torch.uint8),
+        "proprio": torch.zeros(5, 14),
+    }
+    features = encoder(obs)
+    assert features.shape == (5, encoder.out_dim) == (5, 2 * 3 * 8 + 14)
+    side, wrist = features[:, :24], features[:, 24:48]
+    assert not torch.allclose(side, wrist)  # different images, different features
+
+
+@pytest.mark.skipif(importlib.util.find_spec("timm") is not None, reason="timm is installed")
+def test_timm_backbone_without_timm_is_a_clear_error():
+    from wirecraft.rl.vision import VisualEncoder
+
+    cfg = VisionPPOConfig(backbone="timm:vit_small_patch14_dinov2", backbone_weights="w.pt")
+    with pytest.raises(ValueError, match="timm"):
+        VisualEncoder(cfg, image_size=224, proprio_dim=14)
+
+
+def test_load_policy_rejects_paths_outside_a_run(tmp_path):
+    with pytest.raises(ValueError, match="no such"):
+        load_policy(tmp_path / "missing")
+    with pytest.raises(ValueError, match=RUN_FILE):
+        load_policy(tmp_path)
+
+
+def test_train_cli_rejects_an_existing_run_without_resume(tmp_path, capsys):
+    from wirecraft.cli import main
+
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "notes.txt").write_text("x")
+    code = main(["train", "ppo", "--out", str(tmp_path / "run"), "--steps", "10"])
+    assert code == 2 and "not an RL run directory" in capsys.readouterr().err
+    code = main(["train", "ppo", "--out", str(tmp_path / "new"), "--steps", "1.5"])
+    assert code == 2
+
+
+@pytest.mark.slow
+def test_interrupted_ppo_run_saves_its_last_complete_iteration(tmp_path, monkeypatch):
+    from wirecraft.rl import ppo
+
+    make_adapter = ppo.make_vec_env_adapter
+
+    def interrupting_adapter(*args, **kwargs):
+        env = make_adapter(*args, **kwargs)
+        step = env.step
+
+        def step_then_interrupt(actions):
+            if env.env_steps >= 20 * env.num_envs:  # in iteration 2 (8 steps per iteration)
+                raise KeyboardInterrupt
+            return step(actions)
+
+        env.step = step_then_interrupt
+        return env
+
+    monkeypatch.setattr(ppo, "make_vec_env_adapter", interrupting_adapter)
+    settings = {**PPO_TINY, "num_envs": 2}
+    with pytest.raises(KeyboardInterrupt):
+        train("ppo", "insertion", SHORT, tmp_path / "run", 160, overrides=settings, progress=False)
+    run = json.loads((tmp_path / "run" / RUN_FILE).read_text())
+    assert run["latest_checkpoint"] == "checkpoints/model_1.pt"
+    assert run["iterations_done"] == 2 and run["env_steps"] == 32
+    rows = ProgressTable(tmp_path / "run" / "progress.csv").rows()
+    assert [r["iteration"] for r in rows] == [0, 1]
