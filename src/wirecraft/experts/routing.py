@@ -13,19 +13,22 @@ success flags or ``task.routed``):
 - ``env.controller``: its own target pose and base frame, through
   ``wirecraft.control.servo_action``.
 
-Phases (``PHASES``), once per clip: approach -> descend -> close -> lift -> rotate -> stretch
--> pull_back -> push -> release -> retreat, then back to ``approach`` for the next clip
-(re-grasp) or ``done``.  Every goal is a TCP pose in the robot base frame.
+Phases (``PHASES``), once per clip: approach -> descend -> close -> lift -> rotate -> raise
+-> stretch -> pull_back -> push -> release -> retreat, then back to ``approach`` for the next
+clip (re-grasp; the first clip the expert's own slot check finds empty, while retries last)
+or ``done``.  Every goal is a TCP pose in the robot base frame.
 
-- Grasp: the wire node nearest the clip among those far enough along the wire (from the
-  anchor: the clamp for the first clip, the previous clip afterwards) to reach past the clip;
-  TCP pointing down, pads closing across the local wire tangent (the nearer of the two
-  equivalent yaws); the TCP descends to a fixed height above the table.
-- At grasp time the anchor-to-clip direction (horizontal) is frozen.
-- Lift, rotate the pads' closing axis across the slot axis, over-stretch: the grasped point
-  ``over_stretch`` past the slot along the frozen direction, at the carry height; pull back to
-  the clip front (``front`` beyond the clip's centre along the slot axis, on the far side from
-  the anchor); push down to ``push_height``; release; retreat.
+- Grasp: the first wire point (every 5 mm along the centre line, clear of the clips and the
+  plug) with enough free wire beyond the anchor (the clamp for the first clip, the previous
+  clip afterwards) to be just taut at the clip front; TCP pointing down, pads closing across
+  the local wire tangent (the nearer of the two equivalent yaws); the TCP descends to a fixed
+  height above the table.
+- At grasp time the anchor and the anchor-to-clip direction (horizontal) are frozen.
+- Lift a little and swing the wire low to beside the clip while turning the pads across the
+  slot axis (a stiff wire lifted and swung near a seated clip pries it out), raise to the carry
+  height, over-stretch along the frozen direction until the free wire is straight, pull back
+  to the clip front (``front`` past the slot centre along the slot axis, far side), push down
+  to ``push_height``, release, retreat.
 """
 
 from __future__ import annotations
@@ -46,34 +49,40 @@ class RoutingExpertConfig:
     """Geometry and speeds of the routing expert (SI units; per control step where stated)."""
 
     grasp_height: float = 0.009  # m: TCP above the table when closing on the wire
-    hover: float = 0.05  # m above the grasp height where the approach ends
-    carry_height: float = 0.032  # m: TCP above the table while carrying the wire over the clip
-    over_stretch: float = 0.03  # m past the slot centre along the anchor-to-clip direction
+    hover: float = 0.04  # m above the grasp height where the approach ends
+    sweep_height: float = 0.016  # m: TCP above the table while swinging the wire beside the clip
+    side_gap: float = 0.025  # m: the swing stops this far beside the stretch point
+    carry_height: float = 0.038  # m: TCP above the table while carrying the wire over the clip
+    over_pull: float = 0.004  # m the over-stretch goes past the point where the wire is taut
+    wire_below_tcp: float = 0.005  # m: the held wire's centre below the TCP
     front: float = 0.022  # m past the slot centre along the slot axis (pads clear the clip)
-    push_height: float = 0.010  # m: TCP above the table at the end of the push
-    reach_slack: float = 0.03  # m of wire beyond (anchor-to-clip + front) the grasp point needs
+    push_height: float = 0.008  # m: TCP above the table at the end of the push
+    grasp_slack: float = 0.003  # m of wire beyond the taut anchor-to-front length at a grasp
     grasp_spacing: float = 0.005  # m between candidate grasp points along the centre line
-    clip_clearance: float = 0.035  # m (horizontal) between a grasp point and any clip
-    plug_clearance: float = 0.025  # m of wire kept between the grasp point and the plug
+    clip_clearance: float = 0.03  # m (horizontal) between a grasp point and any clip centre
+    plug_clearance: float = 0.02  # m of wire kept between the grasp point and the plug
     pre_open: float = 0.03  # m pad gap before closing
-    descend_speed: float = 0.004  # m per step
+    descend_speed: float = 0.006  # m per step
     carry_speed: float = 0.008  # m per step
     push_speed: float = 0.002  # m per step
-    retreat: float = 0.05  # m straight up after releasing
-    max_grasp_retries: int = 2
+    retreat: float = 0.03  # m straight up after releasing
+    seated_margin: float = 0.001  # m below the lips a wire must lie to count as seated
+    max_grasp_retries: int = 2  # per clip: re-grasps after a grasp that did not hold
+    max_seat_retries: int = 2  # per episode: clips routed again after a failed push
 
 
 PHASES = (
-    Phase("approach", pos_tol=0.006, rot_tol=0.06, dwell=1, timeout=200),
+    Phase("approach", pos_tol=0.006, rot_tol=0.12, dwell=1, timeout=200),
     Phase("descend", pos_tol=0.002, rot_tol=0.05, dwell=2, timeout=60),
-    Phase("close", pos_tol=np.inf, rot_tol=np.inf, dwell=4, timeout=40),
-    Phase("lift", pos_tol=0.008, rot_tol=0.08, dwell=1, timeout=40),
-    Phase("rotate", pos_tol=0.01, rot_tol=0.05, dwell=1, timeout=120),
+    Phase("close", pos_tol=np.inf, rot_tol=np.inf, dwell=3, timeout=40),
+    Phase("lift", pos_tol=0.004, rot_tol=np.inf, dwell=1, timeout=40),
+    Phase("rotate", pos_tol=0.006, rot_tol=0.05, dwell=1, timeout=150),
+    Phase("raise", pos_tol=0.005, rot_tol=0.05, dwell=1, timeout=30),
     Phase("stretch", pos_tol=0.004, rot_tol=0.05, dwell=2, timeout=60),
     Phase("pull_back", pos_tol=0.003, rot_tol=0.05, dwell=2, timeout=40),
-    Phase("push", pos_tol=0.002, rot_tol=0.06, dwell=4, timeout=40),
-    Phase("release", pos_tol=np.inf, rot_tol=np.inf, dwell=3, timeout=20),
-    Phase("retreat", pos_tol=0.01, rot_tol=0.1, dwell=1, timeout=30),
+    Phase("push", pos_tol=0.002, rot_tol=0.06, dwell=3, timeout=40),
+    Phase("release", pos_tol=np.inf, rot_tol=np.inf, dwell=2, timeout=20),
+    Phase("retreat", pos_tol=0.008, rot_tol=0.1, dwell=1, timeout=30),
     Phase("done"),
 )
 
@@ -94,6 +103,7 @@ class RoutingExpert(ScriptedExpert):
     SNAPSHOTS = (
         ("grasp_pos", (3,)),
         ("grasp_rot", (3, 3)),
+        ("anchor", (3,)),  # base frame, frozen at grasp time
         ("direction", (3,)),  # anchor-to-clip, horizontal, frozen at grasp time
         ("lift_from", (3,)),
         ("slot_rot", (3, 3)),
@@ -106,11 +116,14 @@ class RoutingExpert(ScriptedExpert):
     def _init_state(self) -> None:
         self.clip = np.zeros(self.num_envs, int)  # the clip being routed
         self.grasp_retries = np.zeros(self.num_envs, int)
+        self.seat_retries = np.zeros(self.num_envs, int)
         self.grasp_arc = np.zeros(self.num_envs)  # m along the wire of the current grasp
+        self.free_wire = np.zeros(self.num_envs)  # m of wire between anchor and grasp
 
     def _reset_state(self, mask) -> None:
         self.clip[mask] = 0
         self.grasp_retries[mask] = 0
+        self.seat_retries[mask] = 0
 
     # -- frames ------------------------------------------------------------------------------
     def _up(self, i):
@@ -126,31 +139,35 @@ class RoutingExpert(ScriptedExpert):
         table = self._table_height(i, 0.0)
         return point + (height - np.dot(point - table, up)) * up
 
-    def _down_rot(self, i, axis):
+    def _down_rot(self, i, axis, near=None):
         """TCP rotation pointing down, pads closing across the horizontal ``axis``; of the two
-        equivalent yaws, the one nearer the controller's current target."""
+        equivalent yaws, the one nearer ``near`` (default: the controller's current target)."""
         up = self._up(i)
         axis = _horizontal(axis, up)
         z = -up
-        _, current = self._ctl_target(i)
+        if near is None:
+            _, near = self._ctl_target(i)
         best = None
         for sign in (1.0, -1.0):
             y = sign * np.cross(up, axis)
             rot = np.column_stack([np.cross(y, z), y, z])
-            if best is None or rotation_angle(rot, current) < rotation_angle(best, current):
+            if best is None or rotation_angle(rot, near) < rotation_angle(best, near):
                 best = rot
         return best
 
     # -- the route ---------------------------------------------------------------------------
-    def _clip_geometry(self, i):
+    def _clip_geometry(self, i, index=None):
         """(slot centre (base frame), slot axis (base frame, unit, horizontal), config) of the
-        clip being routed."""
+        clip being routed (or clip ``index``)."""
         env = self.envs[i]
-        clip = env.task.placed_clips(env.data)[self.clip[i]]
+        clip = env.task.placed_clips(env.data)[self.clip[i] if index is None else index]
         world_axis = np.array([np.cos(clip.yaw), np.sin(clip.yaw), 0.0])
         slot = np.array(clip.pos) + [0.0, 0.0, clip.config.base_height]
-        origin, base = self._base(i)
+        _, base = self._base(i)
         return self._to_base(i, slot), base.T @ world_axis, clip.config
+
+    def _arc(self, points):
+        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
 
     def _anchor(self, i):
         """(anchor point (base frame), its arc length along the wire): the clamp for the first
@@ -160,13 +177,38 @@ class RoutingExpert(ScriptedExpert):
         if self.clip[i] == 0:
             clamp = env.data.xpos[env.model.body(env.task.assembly.clamp).id]
             return self._to_base(i, clamp), 0.0
-        prev = env.task.placed_clips(env.data)[self.clip[i] - 1]
-        slot = self._to_base(i, np.array(prev.pos) + [0.0, 0.0, prev.config.base_height])
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        slot, _, _ = self._clip_geometry(i, self.clip[i] - 1)
+        arc = self._arc(points)
         return slot, float(arc[np.argmin(np.linalg.norm(points - slot, axis=1))])
 
+    def seated(self, i) -> np.ndarray:
+        """(clips,) bool: the expert's own reading of which slots hold the wire: some point of
+        the centre line (every 2 mm) between the uprights and ``seated_margin`` below the
+        lips."""
+        env, cfg = self.envs[i], self.config
+        line = resample(env.wire_points(), 0.002)
+        result = []
+        for clip in env.task.placed_clips(env.data):
+            c = clip.config
+            local = clip.to_local(line)
+            result.append(
+                bool(
+                    np.any(
+                        (np.abs(local[:, 0]) <= c.length / 2)
+                        & (np.abs(local[:, 1]) <= c.slot_width / 2)
+                        & (local[:, 2] >= c.base_height)
+                        & (
+                            local[:, 2]
+                            <= c.base_height + c.slot_depth - c.lip_thickness - cfg.seated_margin
+                        )
+                    )
+                )
+            )
+        return np.array(result, bool)
+
     def _plan_grasp(self, i) -> None:
-        """Grasp point, gripper orientation across the local tangent, frozen direction.
+        """Grasp point, gripper orientation across the local tangent, frozen anchor and
+        direction.
 
         Candidates are the wire's centre line resampled every ``grasp_spacing``; those far
         enough along the wire (anchor arc + anchor-to-clip distance + ``front`` +
@@ -177,29 +219,71 @@ class RoutingExpert(ScriptedExpert):
         up = self._up(i)
         nodes = self._to_base(i, env.wire_points())
         points = resample(nodes, cfg.grasp_spacing)
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        arc = self._arc(points)
         slot, _, _ = self._clip_geometry(i)
         anchor, anchor_arc = self._anchor(i)
-        need = anchor_arc + np.linalg.norm(slot - anchor) + cfg.front + cfg.reach_slack
+        need = anchor_arc + self._taut_length(i, slot, anchor) + cfg.grasp_slack
         clips = [self._to_base(i, np.array(c.pos)) for c in env.task.placed_clips(env.data)]
         clear = np.ones(len(points), bool)
         for c in clips:
-            flat = points - c
-            flat = flat - np.outer(flat @ up, up)
-            clear &= np.linalg.norm(flat, axis=1) > cfg.clip_clearance
-        clear &= arc <= arc[-1] - cfg.plug_clearance
+            clear &= np.linalg.norm(_flat(points - c, up), axis=1) > cfg.clip_clearance
+        clear &= (arc <= arc[-1] - cfg.plug_clearance) & (arc > anchor_arc)
         far = arc >= need
-        for ok in (clear & far, clear, np.ones(len(points), bool)):
+        for ok in (clear & far, clear, arc > anchor_arc, np.ones(len(points), bool)):
             if ok.any():
                 break
         candidates = np.flatnonzero(ok)
-        k = candidates[np.argmin(np.linalg.norm(points[candidates] - slot, axis=1))]
+        if (clear & far).any():
+            k = candidates[0]  # the first point far enough: the wire is nearly taut at the front
+        else:
+            k = candidates[np.argmin(np.linalg.norm(points[candidates] - slot, axis=1))]
         tangent = points[min(k + 1, len(points) - 1)] - points[max(k - 1, 0)]
         grasp = self._at_height(i, points[k], cfg.grasp_height)
         self.fsm.snapshots["grasp_pos"][i] = grasp
         self.fsm.snapshots["grasp_rot"][i] = self._down_rot(i, tangent)
+        self.fsm.snapshots["anchor"][i] = anchor
         self.fsm.snapshots["direction"][i] = _horizontal(slot - anchor, up)
         self.grasp_arc[i] = arc[k]
+        self.free_wire[i] = arc[k] - anchor_arc
+
+    def _rise(self, i, anchor):
+        """m the held wire's centre stands above ``anchor`` at the carry height."""
+        cfg = self.config
+        height = np.dot(anchor - self._table_height(i, 0.0), self._up(i))
+        return cfg.carry_height - cfg.wire_below_tcp - height
+
+    def _taut_length(self, i, slot, anchor):
+        """m of wire from the anchor to the clip front at the carry height, pulled straight."""
+        reach = np.linalg.norm(_flat(slot - anchor, self._up(i)))
+        return float(np.hypot(reach + self.config.front, self._rise(i, anchor)))
+
+    def _stretch_goal(self, i):
+        """The over-stretch point on the frozen anchor-to-clip direction, at the carry height:
+        where the free wire (anchor to grasp) is pulled straight, plus ``over_pull``; at least
+        ``front`` past the slot."""
+        cfg, fsm = self.config, self.fsm
+        up = self._up(i)
+        slot, _, _ = self._clip_geometry(i)
+        anchor, direction = fsm.get("anchor")[i], fsm.get("direction")[i]
+        reach = np.linalg.norm(_flat(slot - anchor, up))
+        straight = np.sqrt(max(self.free_wire[i] ** 2 - self._rise(i, anchor) ** 2, 0.0))
+        distance = max(straight + cfg.over_pull, reach + cfg.front + cfg.over_pull)
+        return self._at_height(i, anchor + distance * direction, cfg.carry_height)
+
+    def _beside_goal(self, i):
+        """The stretch point moved ``side_gap`` towards the side of the frozen direction the
+        grasp lay on (less if the grasp was nearer the line): the low swing ends there, with
+        the wire clear of the clip's uprights."""
+        cfg, fsm = self.config, self.fsm
+        up = self._up(i)
+        stretch = self._stretch_goal(i)
+        direction = fsm.get("direction")[i]
+        offset = _flat(fsm.get("lift_from")[i] - stretch, up)
+        offset = offset - np.dot(offset, direction) * direction
+        size = np.linalg.norm(offset)
+        if size < 1e-6:
+            return stretch
+        return stretch + offset * min(1.0, cfg.side_gap / size)
 
     # -- control -------------------------------------------------------------------------------
     def _held(self, i) -> bool:
@@ -228,7 +312,7 @@ class RoutingExpert(ScriptedExpert):
                 grasp_pos, grasp_rot = fsm.get("grasp_pos")[i], fsm.get("grasp_rot")[i]
             return grasp_pos + cfg.hover * up, grasp_rot, fast, open_cmd, None
 
-        # ---- Descend: straight down to the fixed grasp height ---------------------------------
+        # ---- Descend: straight down to the fixed grasp height (the yaw finishes on the way) --
         if name == "descend":
             return grasp_pos, grasp_rot, cfg.descend_speed, open_cmd, None
 
@@ -238,23 +322,27 @@ class RoutingExpert(ScriptedExpert):
             return grasp_pos, grasp_rot, fast, 1.0, bool(self._held(i) and still)
 
         lift_from = fsm.get("lift_from")[i]
-        carry = self._at_height(i, lift_from, cfg.carry_height)
-        # ---- Lift: straight up to the carry height -------------------------------------------
-        if name == "lift":
-            return carry, grasp_rot, fast, 1.0, None
-
         slot_rot = fsm.get("slot_rot")[i]
-        # ---- Rotate: pads across the slot axis, in place ---------------------------------------
+        # ---- Lift: straight up to the carry height, starting to turn to the slot axis ---------
+        if name == "lift":
+            return self._at_height(i, lift_from, cfg.sweep_height), slot_rot, fast, 1.0, None
+
+        # ---- Rotate: pads across the slot axis, swinging the wire low to beside the clip ------
         if name == "rotate":
-            return carry, slot_rot, cfg.carry_speed, 1.0, None
+            goal = self._at_height(i, self._beside_goal(i), cfg.sweep_height)
+            return goal, slot_rot, cfg.carry_speed, 1.0, None
+
+        # ---- Raise: up to the carry height, still beside the clip ----------------------------
+        if name == "raise":
+            goal = self._at_height(i, self._beside_goal(i), cfg.carry_height)
+            return goal, slot_rot, fast, 1.0, None
+
+        # ---- Stretch: over the clip, past the slot along the frozen direction -----------------
+        if name == "stretch":
+            return self._stretch_goal(i), slot_rot, cfg.carry_speed, 1.0, None
 
         slot, axis, _ = self._clip_geometry(i)
         direction = fsm.get("direction")[i]
-        # ---- Stretch: past the slot along the frozen anchor-to-clip direction ----------------
-        if name == "stretch":
-            goal = self._at_height(i, slot + cfg.over_stretch * direction, cfg.carry_height)
-            return goal, slot_rot, cfg.carry_speed, 1.0, None
-
         sign = 1.0 if np.dot(axis, direction) >= 0 else -1.0
         front = slot + cfg.front * sign * axis
         # ---- Pull back: to the clip front (on the slot axis, beyond the clip) ---------------
@@ -276,7 +364,23 @@ class RoutingExpert(ScriptedExpert):
             return hold, slot_rot, fast, open_cmd, bool(opened)
 
         # ---- Retreat: straight up -------------------------------------------------------------
-        return hold + cfg.retreat * up, slot_rot, cfg.descend_speed, open_cmd, None
+        return hold + cfg.retreat * up, slot_rot, cfg.carry_speed, open_cmd, None
+
+    def _next_clip(self, i) -> int | None:
+        """After a clip's retreat: the first clip the wire is not seated in, while retries
+        last; else the next clip in order; None when the route is finished."""
+        seated = self.seated(i)
+        pending = np.flatnonzero(~seated)
+        if len(pending) == 0:
+            return None
+        first = int(pending[0])
+        if first <= self.clip[i]:
+            if self.seat_retries[i] < self.config.max_seat_retries:
+                self.seat_retries[i] += 1
+                return first
+            later = pending[pending > self.clip[i]]
+            return int(later[0]) if len(later) else None
+        return first
 
     def _on_advance(self, advanced: np.ndarray, before: np.ndarray) -> None:
         """Snapshots and branches when environments leave a phase."""
@@ -290,21 +394,25 @@ class RoutingExpert(ScriptedExpert):
             if left == idx("close"):
                 tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
                 fsm.snapshots["lift_from"][i] = tcp_pos
+                _, axis, _ = self._clip_geometry(i)
+                fsm.snapshots["slot_rot"][i] = self._down_rot(i, axis, near=fsm.get("grasp_rot")[i])
             elif left == idx("lift"):
                 if not self._held(i) and self.grasp_retries[i] < cfg.max_grasp_retries:
                     self.grasp_retries[i] += 1
                     fsm.snapshots["grasp_pos"][i] = np.nan
                     fsm.goto("approach", one)
-                    continue
-                _, axis, _ = self._clip_geometry(i)
-                fsm.snapshots["slot_rot"][i] = self._down_rot(i, axis)
             elif left == idx("push"):
                 tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
                 fsm.snapshots["hold_pos"][i] = tcp_pos
             elif left == idx("retreat"):
-                if self.clip[i] + 1 < len(env.task.placed_clips(env.data)):
-                    self.clip[i] += 1
+                nxt = self._next_clip(i)
+                if nxt is not None:
+                    self.clip[i] = nxt
                     self.grasp_retries[i] = 0
                     fsm.snapshots["grasp_pos"][i] = np.nan
                     fsm.goto("approach", one)
-                    continue
+
+
+def _flat(v: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``v`` (..., 3) without its component along ``up``."""
+    return v - np.multiply.outer(v @ up, up)

@@ -6,11 +6,17 @@ Task description
     itself, lifts it over each clip in turn and pushes it down past the compliant lip.
 
 Randomizations (each reset, from the reset seed)
-    Clips: fixed along the lane (world +y); each clip +/-6 cm across the lane, yaw +/-15 deg.
-    Cable: clamp block on the table at the lane's start; the wire leaves it at 25-40 deg off
-    the lane towards the robot, its plug end at 6-11 cm height, rolled +/-18 deg; the
-    assembly then falls and settles for 1 s.  (The connector's own offset and yaw ranges of
-    the insertion task are not applied: they would drop the cable onto the clips.)
+    Clips: fixed along the lane (world +y) at places that depend on the number of clips
+    (``LAYOUTS``); each clip +/-6 cm across the lane, yaw +/-15 deg.  With several clips,
+    neighbouring clips are at most
+    ``max_across`` apart across the lane (rejection sampling): a 0.4 m cable cannot follow a
+    zigzag of 12 cm steps through three clips 8.5 cm apart, and its 33 mm segments cannot bend
+    sharply enough between slots.  Every clip still lies within +/-6 cm of the lane.
+    Cable: clamp block on the table at the lane's start; the wire leaves it at
+    ``wire_angle`` off the lane towards the robot (steep enough that the fallen cable clears
+    the first clip), its plug end at 6-11 cm height, rolled +/-18 deg; the assembly then falls
+    and settles for 1 s.  (The connector's own offset and yaw ranges of the insertion task are
+    not applied: they would drop the cable onto the clips.)
 
 Success conditions
     success: for every clip, some point of the wire's centre line (sampled every 2 mm) lies
@@ -26,6 +32,7 @@ Privileged state (80-d for a 6-joint arm; positions in the robot base frame)
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -38,11 +45,43 @@ from wirecraft.tasks.base import TASKS, Task, shaped
 LANE_X = 0.10  # m
 LANE_JITTER = 0.06  # m across the lane
 CLIP_YAW_JITTER = math.radians(15.0)
-CLIP_Y = {1: (0.0,), 2: (-0.06, 0.08), 3: (-0.10, 0.0, 0.10)}  # m along the lane
-CLAMP_Y = -0.24  # m
-WIRE_ANGLE = (math.radians(25.0), math.radians(40.0))  # off the lane, towards the robot
 PLUG_HEIGHT = (0.06, 0.11)
 PLUG_ROLL = math.radians(18.0)
+
+
+@dataclass(frozen=True)
+class RouteLayout:
+    """Where the clips and the clamp sit along the lane, and how the cable is laid out."""
+
+    clip_y: tuple[float, ...]  # m along the lane
+    clamp_y: float  # m along the lane
+    wire_angle: tuple[float, float]  # rad off the lane, towards the robot
+    max_across: float  # m: largest offset across the lane between neighbouring clips
+
+    def route_length(self, clip_x) -> float:
+        """m of centre line from the clamp through every slot centre (straight hops)."""
+        xs = np.concatenate([[LANE_X], np.asarray(clip_x, float)])
+        ys = np.concatenate([[self.clamp_y], self.clip_y])
+        return float(np.hypot(np.diff(xs), np.diff(ys)).sum())
+
+
+# Why these places: the gripper holds the cable ~2.5 cm past the last clip (front of the clip)
+# and keeps ~2 cm of wire before the plug, so the route from the clamp through every slot may
+# use at most ~0.35 m of a 0.4 m cable (``MAX_ROUTE``); the widest zigzag allowed stays below
+# it.  The wire angle keeps the fallen cable >= 1.5 cm off the first clip.  1 clip keeps the
+# original, roomier layout.
+LAYOUTS = {
+    1: RouteLayout((0.0,), -0.24, (math.radians(25.0), math.radians(40.0)), 2 * LANE_JITTER),
+    2: RouteLayout((-0.06, 0.06), -0.18, (math.radians(36.0), math.radians(50.0)), 0.05),
+    3: RouteLayout((-0.085, 0.0, 0.085), -0.185, (math.radians(36.0), math.radians(50.0)), 0.04),
+}
+CLIP_Y = {n: layout.clip_y for n, layout in LAYOUTS.items()}
+MAX_ROUTE = 0.35  # m of a 0.4 m cable the route from the clamp through every slot may use
+# The lips narrow the mouth 2 mm below the wire's diameter: a 6 cm piece of seated wire then
+# stays in under a slowly growing upward pull of 1 N (about twice the whole cable's weight; it
+# comes out at 2 N), where 1 mm of interference let it out at 0.5 N, less than the stiff wire
+# pries on a clip when the gripper bends it over the next one (tests/test_routing_layout.py).
+LIP_INTERFERENCE = 0.002  # m
 MAX_CLIPS = 3
 WIRE_SAMPLES = 10
 SLOT_SAMPLING = 0.002  # m between centre-line samples when judging "in the slot"
@@ -72,9 +111,10 @@ class RoutingTask(Task):
         weights=None,
     ):
         super().__init__(weights)
-        if num_clips not in CLIP_Y:
+        if num_clips not in LAYOUTS:
             raise ValueError(f"routing: num_clips must be one of 1, 2, 3; got {num_clips!r}")
         self.num_clips = num_clips
+        self.layout = LAYOUTS[num_clips]
         self.clip_opening = clip_opening
         self.connector = make_connector(connector)
 
@@ -86,8 +126,8 @@ class RoutingTask(Task):
     def build_scene(self, spec, wire_config) -> None:
         self.assembly = WireAssembly.build(spec, wire_config, self.connector)
         diameter = 2 * self.assembly.wire.config.radius
-        # By default the lips narrow the mouth 1 mm below the wire's diameter: they retain it.
-        opening = self.clip_opening if self.clip_opening is not None else diameter - 0.001
+        default = diameter - LIP_INTERFERENCE
+        opening = self.clip_opening if self.clip_opening is not None else default
         slot = max(ClipConfig().slot_width, diameter + 0.002)
         self.clip_config = ClipConfig(slot_width=slot, opening=opening)
         self.clip_names = []
@@ -106,17 +146,18 @@ class RoutingTask(Task):
 
     # -- episode ----------------------------------------------------------------------------
     def initialize_episode(self, model, data, rng) -> None:
+        layout = self.layout
         self.sampled = {"clips": []}
-        for mocap, y in zip(self.clip_mocap, CLIP_Y[self.num_clips], strict=True):
-            x = LANE_X + rng.uniform(-LANE_JITTER, LANE_JITTER)
+        xs = self._sample_clip_x(rng)
+        for mocap, x, y in zip(self.clip_mocap, xs, layout.clip_y, strict=True):
             yaw = math.pi / 2 + rng.uniform(-CLIP_YAW_JITTER, CLIP_YAW_JITTER)
             data.mocap_pos[mocap] = (x, y, 0.0)
             data.mocap_quat[mocap] = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
             self.sampled["clips"].append((x, y, yaw))
-        angle = rng.uniform(*WIRE_ANGLE)
+        angle = rng.uniform(*layout.wire_angle)
         roll = rng.uniform(-PLUG_ROLL, PLUG_ROLL)
         length = self.assembly.wire.config.length
-        start = np.array([LANE_X, CLAMP_Y, 0.02])
+        start = np.array([LANE_X, layout.clamp_y, 0.02])
         rise = rng.uniform(*PLUG_HEIGHT) - start[2]
         pitch = math.asin(rise / length)
         direction = np.array(
@@ -124,6 +165,14 @@ class RoutingTask(Task):
         )
         self.sampled.update(angle=angle, roll=roll, pitch=pitch)
         self.assembly.place(model, data, start + length * direction, direction, roll)
+
+    def _sample_clip_x(self, rng) -> np.ndarray:
+        """Clip offsets across the lane: uniform +/-``LANE_JITTER`` each, resampled until
+        neighbours are at most ``max_across`` apart (the first clip is free)."""
+        while True:
+            xs = LANE_X + rng.uniform(-LANE_JITTER, LANE_JITTER, self.num_clips)
+            if np.all(np.abs(np.diff(xs)) <= self.layout.max_across):
+                return xs
 
     # -- geometry ---------------------------------------------------------------------------
     def placed_clips(self, data) -> list[PlacedClip]:
