@@ -1,16 +1,21 @@
-"""The seating expert: action layout, grasp and the full phase sequence.
+"""Channel seating: the task's success predicate on hand-laid cables under physics, and the
+scripted expert (action layout, phase sequence, success on the straight channel).
 
-Success (>= 80% of the wire inside the channel) is NOT reached yet by this expert (0/20 seeds,
-see docs/experts.md); that test is an expected failure until the expert (or the task) is fixed.
+The curved channel is not solved by the expert yet (docs/experts.md): that test is an expected
+failure.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
 
 import wirecraft
 from wirecraft.experts.seating import SeatingExpert
+
+EPISODE_STEPS = 480
 
 
 def run(channel: str, seed: int):
@@ -19,7 +24,7 @@ def run(channel: str, seed: int):
     obs, info = env.reset(seed=seed)
     expert.reset()
     carried, phases = False, set()
-    for _ in range(480):
+    for _ in range(EPISODE_STEPS):
         action = expert.act(obs)
         assert action.shape == (1, 4)
         assert np.all(np.abs(action) <= 1.0)
@@ -31,22 +36,100 @@ def run(channel: str, seed: int):
     return info, carried, phases, expert
 
 
+def channel_path(task, height: float, offset: float = 0.0) -> np.ndarray:
+    """World polyline from the clamp's exit along the channel's centre line, ``height`` above
+    the floor and ``offset`` metres to the left of the centre."""
+    placed = task.placed
+    line = placed.config.centerline(samples_per_segment=40)
+    tangent = np.gradient(line[:, :2], axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    left = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    xy = line[:, :2] + offset * left
+    c, s = math.cos(placed.yaw), math.sin(placed.yaw)
+    world = np.column_stack(
+        [
+            c * xy[:, 0] - s * xy[:, 1] + placed.pos[0],
+            s * xy[:, 0] + c * xy[:, 1] + placed.pos[1],
+            line[:, 2] + placed.pos[2] + height,
+        ]
+    )
+    return np.vstack([task.clamp_exit, world]) if offset == 0.0 else world
+
+
+def settle(env, steps: int):
+    hold = np.zeros(env.action_space.shape)
+    hold[-1] = -1.0
+    info = None
+    for _ in range(steps):
+        _, _, _, _, info = env.step(hold)
+    return info
+
+
+@pytest.mark.parametrize("channel", ["straight", "curved"])
+def test_hand_laid_wire_counts_as_seated_and_stays(channel):
+    """A wire laid along the channel floor from the clamp is seated (the plug, wider than the
+    channel, lies beyond its end) and still is after 1 s of physics."""
+    env = wirecraft.make("seating", channel=channel)
+    env.reset(seed=3)
+    task, model, data = env.unwrapped.task, env.unwrapped.model, env.unwrapped.data
+    radius = task.assembly.wire.config.radius
+    task.assembly.lay_from_clamp(model, data, channel_path(task, radius + 0.0005))
+    info = task.evaluate(model, data)
+    channel_share = task.placed.config.segment_length * 5 / task.assembly.wire.config.length
+    # The wire fills the channel: everything but the bits before the entry and past the end.
+    assert info["fraction_inside"] == pytest.approx(channel_share, abs=0.05)
+    assert info["success"]
+    info = settle(env, 60)
+    assert info["success"] and not info["diverged"]
+    assert info["fraction_inside"] == pytest.approx(channel_share, abs=0.05)
+
+
+def test_wire_beside_the_channel_does_not_count():
+    """A wire lying on the table 3 cm beside the channel, parallel to it, is not seated."""
+    env = wirecraft.make("seating", channel="straight")
+    env.reset(seed=3)
+    task, model, data = env.unwrapped.task, env.unwrapped.model, env.unwrapped.data
+    radius = task.assembly.wire.config.radius
+    beside = channel_path(task, -task.placed.config.floor + radius, offset=0.03)
+    task.assembly.lay_from_clamp(model, data, beside)
+    info = task.evaluate(model, data)
+    assert info["fraction_inside"] == 0.0 and not info["success"]
+
+
+@pytest.mark.parametrize("channel", ["straight", "curved"])
+def test_settled_start_is_not_seated(channel):
+    """At reset the cable drapes over a wall onto the table: only its first centimetres, out
+    of the clamp, lie in the channel."""
+    env = wirecraft.make("seating", channel=channel)
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        assert not info["success"] and info["fraction_inside"] < 0.4
+
+
 def test_needs_cartesian_fixed():
     with pytest.raises(ValueError, match="cartesian_fixed"):
         SeatingExpert(wirecraft.make("seating", control="cartesian"))
 
 
-@pytest.mark.parametrize(("channel", "seed"), [("straight", 0), ("curved", 1)])
-def test_grasps_carries_and_finishes(channel, seed):
-    info, carried, phases, expert = run(channel, seed)
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_seats_the_wire_in_the_straight_channel(seed):
+    info, carried, phases, expert = run("straight", seed)
     assert carried, "the plug must be held while laying"
+    assert {"settle", "close", "carry", "lay", "place", "release"} <= phases
+    assert expert.phase_names[0] == "done"
+    assert not info["diverged"]
+    assert info["success"] and info["fraction_inside"] >= 0.8
+
+
+def test_curved_runs_to_the_end_holding_the_plug():
+    info, carried, phases, expert = run("curved", 1)
+    assert carried
     assert {"settle", "close", "carry", "lay", "place", "release"} <= phases
     assert expert.phase_names[0] == "done"
     assert not info["diverged"]
 
 
-@pytest.mark.xfail(reason="the expert does not yet lay the wire into the channel", strict=False)
-@pytest.mark.parametrize("channel", ["straight", "curved"])
-def test_seats_the_wire(channel):
-    info, *_ = run(channel, 0)
+@pytest.mark.xfail(reason="the stiff wire bridges the curved channel's bends", strict=False)
+def test_seats_the_wire_in_the_curved_channel():
+    info, *_ = run("curved", 0)
     assert info["success"]

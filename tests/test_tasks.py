@@ -20,6 +20,8 @@ def place_polyline(env, points):
     model, data = env.unwrapped.model, env.unwrapped.data
     ends = task.assembly.wire.set_centerline(model, data, np.asarray(points), roll=0.0)
     for joint, end in (("plug_free", "end"), ("clamp_free", "start")):
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, joint) < 0:
+            continue  # seating's clamp is bolted to the board: the polyline starts at its exit
         adr = model.joint(joint).qposadr[0]
         data.qpos[adr : adr + 3] = ends[end][0]
         data.qpos[adr + 3 : adr + 7] = ends[end][1]

@@ -1,9 +1,14 @@
 """The cable every task starts from: a wire with a plug on its end and a clamp on its start.
 
-The clamp is a 0.2 kg block that rests on the table: the cable's far end is dynamic, as on a
-real harness board, and drifts when the wire is pulled hard.  At each reset the whole assembly
-is laid out straight behind a sampled plug pose (``place``), then the task lets it fall and
-settle.
+By default the clamp is a 0.2 kg block that rests on the table: the cable's far end is
+dynamic, as on a real harness board, and drifts when the wire is pulled hard.  At each reset
+the whole assembly is laid out straight behind a sampled plug pose (``place``), then the task
+lets it fall and settle.
+
+``build(..., fixed_clamp=(exit, yaw))`` instead bolts the clamp to the board: a static body
+(no joint) whose wire exit is the world point ``exit`` and from which the wire leaves
+horizontally at heading ``yaw``; its block stands on the table behind the exit.  A task then
+lays the wire out from that exit itself (``lay_from_clamp``).
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ import numpy as np
 
 from wirecraft import physics
 from wirecraft.assets.connectors import Connector, add_plug
-from wirecraft.assets.shapes import Box, add_to_body
+from wirecraft.assets.shapes import Box, add_to_body, quat_about
 from wirecraft.assets.wires import WireConfig, WireHandle, add_wire
 from wirecraft.sensors import Contacts, body_geom_ids, flex_ids, quat_to_mat
 
@@ -35,17 +40,39 @@ class WireAssembly:
     clamp: str = "clamp"
 
     @classmethod
-    def build(cls, spec: mujoco.MjSpec, wire_config: WireConfig, connector: Connector):
+    def build(
+        cls,
+        spec: mujoco.MjSpec,
+        wire_config: WireConfig,
+        connector: Connector,
+        *,
+        fixed_clamp: tuple[tuple[float, float, float], float] | None = None,
+    ):
+        """The wire, its plug and its clamp.  ``fixed_clamp``: None for the free 0.2 kg clamp
+        block; ``(exit, yaw)`` for a clamp bolted to the board with its wire exit at the world
+        point ``exit`` and the wire leaving it horizontally at heading ``yaw`` (rad about z)."""
         wire = add_wire(spec, wire_config, name="wire", pos=(0.0, 0.0, 0.05))
         pos, quat = wire.end_pose("end")
         add_plug(spec, connector, name="plug", pos=tuple(pos), quat=tuple(quat))
         wire.attach(spec, "end", "plug")
-        pos, quat = wire.end_pose("start")
-        clamp = spec.worldbody.add_body(name="clamp", pos=tuple(pos), quat=tuple(quat))
-        clamp.add_freejoint(name="clamp_free")
-        # The clamp's origin holds the wire start near the top of its block, which sits behind
-        # it (+x, away from the wire): the cable leaves above low fixtures such as channels.
-        block = Box(CLAMP_HALF, (CLAMP_HALF[0], 0.0, CLAMP_EXIT_DROP))
+        if fixed_clamp is None:
+            pos, quat = wire.end_pose("start")
+            clamp = spec.worldbody.add_body(name="clamp", pos=tuple(pos), quat=tuple(quat))
+            clamp.add_freejoint(name="clamp_free")
+            # The clamp's origin holds the wire start near the top of its block, which sits
+            # behind it (+x, away from the wire): the cable leaves above low fixtures.
+            drop = CLAMP_EXIT_DROP
+        else:
+            exit_point, yaw = fixed_clamp
+            if exit_point[2] <= 0.0:
+                raise ValueError(f"fixed_clamp: the exit must be above the table, got {exit_point}")
+            # The body's +x points away from the wire (wires/base.py): turned by yaw + pi.
+            clamp = spec.worldbody.add_body(
+                name="clamp", pos=tuple(exit_point), quat=quat_about((0, 0, 1), yaw + math.pi)
+            )
+            # Bolted down: the block stands on the table whatever the exit height.
+            drop = CLAMP_HALF[2] - exit_point[2]
+        block = Box(CLAMP_HALF, (CLAMP_HALF[0], 0.0, drop))
         volume = 8 * np.prod(CLAMP_HALF)
         add_to_body(
             spec,
@@ -63,8 +90,10 @@ class WireAssembly:
         self.plug_id = model.body(self.plug).id
         self.plug_qpos = model.joint("plug_free").qposadr[0]
         self.plug_dof = model.joint("plug_free").dofadr[0]
-        self.clamp_qpos = model.joint("clamp_free").qposadr[0]
-        self.clamp_dof = model.joint("clamp_free").dofadr[0]
+        clamp_body = model.body(self.clamp)
+        self.clamp_fixed = int(clamp_body.jntnum[0]) == 0
+        self.clamp_qpos = None if self.clamp_fixed else model.joint("clamp_free").qposadr[0]
+        self.clamp_dof = None if self.clamp_fixed else model.joint("clamp_free").dofadr[0]
         self.tip_site = model.site("plug_tip").id
         self.grasp_site = model.site("plug_grasp").id
         self.plug_contacts = body_geom_ids(model, [self.plug])
@@ -116,15 +145,41 @@ class WireAssembly:
             float(np.dot(natural[:, 1], wanted[:, 1])),
         )
         ends = self.wire.set_centerline(model, data, line, roll=offset)
+        self._put_ends(model, data, ends)
+
+    def _put_ends(self, model, data, ends) -> None:
+        """Plug (and a free clamp) on the wire's ends, at rest; then ``mj_forward``."""
         for body_qpos, body_dof, end in (
             (self.plug_qpos, self.plug_dof, "end"),
             (self.clamp_qpos, self.clamp_dof, "start"),
         ):
+            if body_qpos is None:  # a clamp bolted to the board stays where it is
+                continue
             pos, quat = ends[end]
             data.qpos[body_qpos : body_qpos + 3] = pos
             data.qpos[body_qpos + 3 : body_qpos + 7] = quat
             data.qvel[body_dof : body_dof + 6] = 0.0
         mujoco.mj_forward(model, data)
+
+    def lay_from_clamp(self, model, data, points) -> None:
+        """Lay the wire along the polyline ``points`` (K, 3, world), which must start at a fixed
+        clamp's exit, untwisted from the clamp's frame, and put the plug on its end, at rest."""
+        if not self.clamp_fixed:
+            raise ValueError("lay_from_clamp needs an assembly built with fixed_clamp")
+        points = np.asarray(points, float)
+        # set_centerline's roll is relative to its own transported frame; roll the wire so its
+        # start frame is the clamp's (the weld holds it there).
+        clamp = quat_to_mat(model.body_quat[model.body(self.clamp).id])
+        natural = quat_to_mat(self.wire.set_centerline(model, data, points)["start"][1])
+        offset = math.atan2(
+            float(np.dot(np.cross(natural[:, 1], clamp[:, 1]), natural[:, 0])),
+            float(np.dot(natural[:, 1], clamp[:, 1])),
+        )
+        for sign in (-1.0, 1.0):  # the start frame's x is minus the tangent the roll turns about
+            ends = self.wire.set_centerline(model, data, points, roll=sign * offset)
+            if sign > 0 or np.dot(quat_to_mat(ends["start"][1])[:, 1], clamp[:, 1]) > 0.999:
+                break
+        self._put_ends(model, data, ends)
 
     def lowest_point(self, model, data) -> float:
         """Lowest height (m) of the wire surface, the plug and the clamp (after mj_forward)."""
