@@ -102,6 +102,16 @@ def test_demo_writes_strip_and_summary(tmp_path):
     for name, count in (("wires.png", len(rows)), ("tasks.png", len(tasks))):
         strip = np.asarray(Image.open(tmp_path / name))
         assert strip.shape[0] == 240 * count and strip.std() > 10
+    import av
+
+    for t in tasks:  # a side-camera video per task: as many frames as 30 fps of its steps
+        with av.open(str(tmp_path / t["video"])) as container:
+            frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+        assert len(frames) == t["control_steps"] // 2 + 1
+        assert frames[0].shape == (240, 240, 3)
+        assert np.abs(frames[-1].astype(int) - frames[0]).mean() > 1  # the robot moved
+    table = (tmp_path / "summary.md").read_text()
+    assert all(f"| {t['task']} |" in table for t in tasks)
 
 
 def test_demo_rejects_non_positive_duration(capsys):

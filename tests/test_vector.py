@@ -189,3 +189,29 @@ def test_an_environment_reset_mid_run_continues_exactly_like_a_fresh_single_envi
         obs, *_ = env.step(a[1])
         single.append(obs)
     np.testing.assert_array_equal(np.array(batched), np.array(single))
+
+
+def test_batched_infos_match_gymnasiums_own_per_environment_merge():
+    from gymnasium.vector import VectorEnv
+
+    def per_environment(venv):
+        def merge(infos, step_infos):
+            for i, info in enumerate(step_infos):
+                infos = VectorEnv._add_info(venv, infos, info, i)
+            return infos
+
+        venv._merge_infos = merge
+        return venv
+
+    fast = wirecraft.make_vec("insertion", 3, threads=1)
+    slow = per_environment(wirecraft.make_vec("insertion", 3, threads=1))
+    for venv in (fast, slow):
+        venv.reset(seed=0)
+    action = np.zeros(fast.action_space.shape)
+    for _ in range(2):
+        *_, info_fast = fast.step(action)
+        *_, info_slow = slow.step(action)
+        assert info_fast.keys() == info_slow.keys()
+        for key in info_fast:
+            assert info_fast[key].dtype == info_slow[key].dtype, key
+            np.testing.assert_array_equal(info_fast[key], info_slow[key])

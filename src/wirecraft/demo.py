@@ -1,9 +1,11 @@
 """``wirecraft demo``: the main job on a CPU, end to end, in about a minute.
 
-1. Each task family (insertion, routing, seating; UR5, capsule-chain wire) is reset and
-   driven by its scripted expert for a whole episode where one exists (insertion so far), else
-   for a few seconds by a seeded random policy: the table reports control steps per second,
-   reward and success, and ``tasks.png`` shows side views over time.
+1. Each task family (insertion with an Ethernet plug, routing through 1 clip, seating in the
+   straight channel; UR5, capsule-chain wire) is reset with a fixed seed and driven by its
+   scripted expert until success has held 0.5 s or the 8 s episode ends.  Each episode's side
+   camera is written as an MP4 video (``TASK.mp4``, 30 fps), ``tasks.png`` shows four side
+   views per task, and the table (``summary.md``) reports success, the time of first success,
+   control steps per second and the return.
 2. Each wire model, with an Ethernet plug on its end, is dropped into a channel on the task
    board: physics speed, divergence and how much of the wire came to rest in the channel
    (``wires.png``).
@@ -49,71 +51,127 @@ def build_drop_scene(wire_model: str):
     return spec, wire, channel
 
 
-# (task, keyword arguments, policy): "expert" runs the task's scripted expert for a whole
-# episode; "random" a seeded random policy for ``seconds``.
+# (task, keyword arguments): each is driven by its scripted expert (experts.expert_class).
 DEMO_TASKS = (
-    ("insertion", {"connector": "ethernet"}, "expert"),
-    ("routing", {"num_clips": 2}, "random"),
-    ("seating", {"channel": "curved"}, "random"),
+    ("insertion", {"connector": "ethernet"}),
+    ("routing", {"num_clips": 1}),
+    ("seating", {"channel": "straight"}),
 )
+VIDEO_FPS = 30
+VIDEO_SIZE = 240
+SUCCESS_HOLD_STEPS = 30  # 0.5 s at 60 Hz: the episode (and its video) ends then
 
 
-def _policy(kind: str, env):
-    if kind == "expert":
-        from wirecraft.experts import InsertionExpert
-        from wirecraft.experts.insertion import InsertionExpertConfig
+def write_mp4(frames, path: str | Path, fps: int = VIDEO_FPS) -> Path:
+    """Write RGB frames (T, H, W, 3) uint8 as an H.264 MP4 (PyAV; H and W even)."""
+    from fractions import Fraction
 
-        expert = InsertionExpert(env, InsertionExpertConfig(release=False))
-        expert.reset()
-        return lambda obs: expert.act(obs)[0]
-    return lambda obs: env.action_space.sample()
+    import av
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frames = np.asarray(frames)
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("h264", fps, options={"crf": "23", "preset": "veryfast"})
+        stream.pix_fmt = "yuv420p"
+        stream.height, stream.width = frames.shape[1:3]
+        stream.time_base = Fraction(1, fps)
+        for i, image in enumerate(frames):
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
+            frame.pts = i
+            for packet in stream.encode(frame):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    return path
 
 
-def run_task_demo(out_dir: str | Path, seconds: float = 2.0, seed: int = 0) -> list[dict]:
-    """A rollout of every task family (scripted expert where there is one, else a random
-    policy); returns one summary row per task."""
+def run_task_demo(out_dir: str | Path, seed: int = 0) -> list[dict]:
+    """One seeded episode of every task family with its scripted expert; writes a side-camera
+    video per task and ``tasks.png``; returns one summary row per task."""
     import wirecraft
+    from wirecraft.envs import CONTROL_HZ
+    from wirecraft.experts import expert_class
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows, strips = [], []
-    for task, kwargs, policy_kind in tqdm(DEMO_TASKS, desc="demo tasks", unit="task"):
-        env = wirecraft.make(task, render_mode="rgb_array", image_size=240, **kwargs)
-        env.action_space.seed(seed)
+    stride = CONTROL_HZ // VIDEO_FPS
+    for task, kwargs in tqdm(DEMO_TASKS, desc="demo tasks", unit="task"):
+        expert_cls = expert_class(task)
+        env = wirecraft.make(task, control=expert_cls.CONTROL, **kwargs)
+        u = env.unwrapped
         obs, info = env.reset(seed=seed)
-        policy = _policy(policy_kind, env)
-        if policy_kind == "expert":
-            steps = env.unwrapped.max_steps
-        else:
-            steps = max(1, int(seconds * wirecraft.envs.CONTROL_HZ))
-        shots = set(np.linspace(0, steps - 1, 4).round().astype(int).tolist())
-        images, total, stepping = [env.render()], 0.0, 0.0
-        for step in range(steps):
-            action = policy(obs)
+        expert = expert_cls(env, seed=seed)
+        renderer = FastRenderer(u.model, VIDEO_SIZE, VIDEO_SIZE)
+        frames = [renderer.render(u.data, u.robot.side_camera)]
+        total, stepping, held, first_success = 0.0, 0.0, 0, None
+        for step in range(u.max_steps):
+            action = expert.act(obs)[0]
             tic = time.perf_counter()
-            obs, reward, _, truncated, info = env.step(action)
+            obs, reward, terminated, truncated, info = env.step(action)
             stepping += time.perf_counter() - tic
             total += reward
-            if step in shots:
-                images.append(env.render())
-            if truncated:
+            if (step + 1) % stride == 0:
+                frames.append(renderer.render(u.data, u.robot.side_camera))
+            held = held + 1 if info["success"] else 0
+            if info["success"] and first_success is None:
+                first_success = step + 1
+            if terminated or truncated or held >= SUCCESS_HOLD_STEPS:
                 break
+        renderer.close()
+        video = write_mp4(frames, out_dir / f"{task}.mp4")
+        picks = np.linspace(0, len(frames) - 1, 4).round().astype(int)
+        strips.append(np.concatenate([frames[i] for i in picks], axis=1))
         rows.append(
             {
                 "task": task,
                 **kwargs,
-                "policy": policy_kind,
-                "instruction": env.unwrapped.task.instruction,
+                "policy": expert_cls.__name__,
+                "seed": seed,
+                "instruction": u.task.instruction,
+                "control_steps": step + 1,
                 "control_steps_per_s": round((step + 1) / stepping, 1),
                 "return": round(total, 2),
                 "success": bool(info["success"]),
+                "first_success_s": None
+                if first_success is None
+                else round(first_success / CONTROL_HZ, 2),
                 "diverged": bool(info["diverged"]),
+                "video": video.name,
             }
         )
-        strips.append(np.concatenate(images, axis=1))
         env.close()
     save_png(np.concatenate(strips, axis=0), out_dir / "tasks.png")
     return rows
+
+
+def summary_markdown(tasks: list[dict], wires: list[dict]) -> str:
+    """The demo's results as markdown tables."""
+    lines = [
+        "# WireCraft demo",
+        "",
+        "| task | expert | seed | success | first success (s) | steps | steps/s | return | video |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in tasks:
+        first = "-" if r["first_success_s"] is None else r["first_success_s"]
+        lines.append(
+            f"| {r['task']} | {r['policy']} | {r['seed']} | {'yes' if r['success'] else 'no'} "
+            f"| {first} | {r['control_steps']} | {r['control_steps_per_s']} | {r['return']} "
+            f"| [{r['video']}]({r['video']}) |"
+        )
+    lines += [
+        "",
+        "| wire | physics steps/s | x real time | in channel | diverged |",
+        "|---|---|---|---|---|",
+    ]
+    for r in wires:
+        lines.append(
+            f"| {r['wire']} | {r['physics_steps_per_s']} | {r['realtime_factor']} "
+            f"| {r['fraction_in_channel']:.0%} | {'yes' if r['diverged'] else 'no'} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def run_demo(out_dir: str | Path, seconds: float = 2.0) -> list[dict]:

@@ -91,6 +91,7 @@ class WireCraftVectorEnv(VectorEnv):
         terminations = np.zeros(self.num_envs, bool)
         truncations = np.zeros(self.num_envs, bool)
         infos: dict = {}
+        step_infos = []
         for i, env in enumerate(self.envs):
             obs, reward, terminated, truncated, info = env.finish_step(
                 actions[i], befores[i], failed=i in failed, forwarded=True
@@ -102,7 +103,8 @@ class WireCraftVectorEnv(VectorEnv):
                 info = {**info, **{f"reset/{k}": v for k, v in reset_info.items()}}
             self._write_obs(i, obs)
             rewards[i], terminations[i], truncations[i] = reward, terminated, truncated
-            infos = self._add_info(infos, info, i)
+            step_infos.append(info)
+        infos = self._merge_infos(infos, step_infos)
         return self._obs_copy(), rewards, terminations, truncations, infos
 
     def close_extras(self, **kwargs) -> None:
@@ -137,6 +139,24 @@ class WireCraftVectorEnv(VectorEnv):
         for i, env in enumerate(self.envs):
             self.batch.get_data(i, env.data)
         return failed
+
+    def _merge_infos(self, infos: dict, step_infos: list[dict]) -> dict:
+        """gymnasium's batched info layout (``key`` array + ``_key`` mask), built one key at a
+        time when every environment reports the same scalar keys (the usual step), instead of
+        one environment at a time (``_add_info``, kept for everything else)."""
+        first = step_infos[0]
+        scalar = (bool, int, float, np.number)
+        if all(info.keys() == first.keys() for info in step_infos) and all(
+            isinstance(v, scalar) for v in first.values()
+        ):
+            everyone = np.ones(self.num_envs, bool)
+            for key, value in first.items():
+                infos[key] = np.array([info[key] for info in step_infos], dtype=type(value))
+                infos[f"_{key}"] = everyone.copy()
+            return infos
+        for i, info in enumerate(step_infos):
+            infos = self._add_info(infos, info, i)
+        return infos
 
     def _write_obs(self, index: int, obs) -> None:
         if isinstance(self._obs, dict):

@@ -1,0 +1,649 @@
+"""``wirecraft collect``: scripted-expert demonstrations written as a LeRobot v3 dataset.
+
+- Episode attempt ``k`` resets the environment with ``env_seed(seed, k)`` and seeds the
+  expert's own random choices (diversity) with the same number: it depends only on
+  (``seed``, ``k``), so the dataset is the same whatever the number of workers, with Ray or
+  without, and after any interruption and ``--resume``.  Results are written in attempt order.
+- An episode ends at the environment's end (8 s, or a divergence) or, earlier, at the first
+  frame boundary once the task's ``success`` flag has held for ``success_hold_s`` (0.5 s =
+  30 control steps; 0 disables the early end).  It succeeded when ``success`` holds at its
+  last state (and it did not diverge).  Failed episodes are dropped unless ``keep_failures``;
+  attempts continue until ``episodes`` are saved or ``max_attempts`` were made.
+- Frames and actions follow ``EpisodeRecorder`` (fps a divisor of 60; the action of a frame is
+  the joint targets after the last control step of its period).
+- Workers: ``workers = 0`` runs in this process; ``N >= 1`` starts N processes (spawn); with
+  ``ray_address`` (``"local"``: a local Ray instance with ``workers`` CPUs) Ray tasks generate
+  the episodes.  This process is the only writer (``EpisodeWriter``).
+- SIGINT / SIGTERM: the episode being written is finished, the dataset is committed and
+  finalized (loadable), and ``collect`` returns with ``interrupted`` set; a second signal
+  stops at once (``--resume`` then rolls back to the last commit).  A hard kill loses at most
+  the episodes since the last commit (``commit_every``); ``--resume`` regenerates them.
+- The collection settings are stored in ``meta/wirecraft_collect.json``; ``resume`` refuses a
+  dataset collected with different settings (only ``episodes`` and the workers may change).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import sys
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from wirecraft.datasets import schema
+from wirecraft.datasets.recorder import Episode, EpisodeRecorder
+
+SETTINGS_FILE = "meta/wirecraft_collect.json"
+DEFAULT_IMAGE_SIZE = 224
+POLL_SECONDS = 0.2
+# An attempt without a result after this long means a worker died (a crashed process's task
+# is lost: multiprocessing would wait for it forever).
+ATTEMPT_TIMEOUT_S = 900.0
+
+
+@dataclass(frozen=True)
+class CollectSettings:
+    """What determines the episodes' content (stored with the dataset, checked on resume)."""
+
+    task: str = "insertion"  # task family
+    env_kwargs: dict = field(default_factory=dict)  # environment keywords (image size apart)
+    image_size: int = DEFAULT_IMAGE_SIZE
+    fps: int = 30
+    seed: int = 0
+    keep_failures: bool = False
+    success_hold_s: float = 0.5
+    vcodec: str = "h264"  # a key of writer.VIDEO_CODECS
+
+    def __post_init__(self) -> None:
+        import wirecraft
+        from wirecraft.envs.env import CONTROL_HZ
+        from wirecraft.experts import expert_class
+
+        family = next((k for k, v in wirecraft.TASK_IDS.items() if self.task in (k, v)), None)
+        if family is None:
+            valid = ", ".join(wirecraft.TASK_IDS)
+            raise ValueError(f"unknown task {self.task!r}; valid: {valid}")
+        object.__setattr__(self, "task", family)
+        expert = expert_class(family)
+        kwargs = dict(self.env_kwargs)
+        for key in ("obs_mode", "render_mode", "image_size", "task"):
+            if key in kwargs:
+                raise ValueError(f"collect sets {key!r} itself; do not pass it in env_kwargs")
+        control = kwargs.setdefault("control", expert.CONTROL)
+        if control != expert.CONTROL:
+            raise ValueError(
+                f"the scripted {family} expert drives control={expert.CONTROL!r}, "
+                f"got control={control!r}"
+            )
+        object.__setattr__(self, "env_kwargs", _with_defaults(family, kwargs))
+        for name, low in (("image_size", 16), ("fps", 1), ("seed", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        if CONTROL_HZ % self.fps:
+            divisors = [d for d in range(1, CONTROL_HZ + 1) if CONTROL_HZ % d == 0]
+            raise ValueError(
+                f"fps must divide the {CONTROL_HZ} Hz control rate: one of "
+                f"{', '.join(map(str, divisors))}; got {self.fps}"
+            )
+        from wirecraft.datasets.writer import VIDEO_CODECS
+
+        if self.vcodec not in VIDEO_CODECS:
+            raise ValueError(f"unknown vcodec {self.vcodec!r}; valid: {', '.join(VIDEO_CODECS)}")
+        hold = self.success_hold_s
+        if isinstance(hold, bool) or not isinstance(hold, (int, float)) or not hold >= 0:
+            raise ValueError(f"success_hold_s must be a number >= 0, got {hold!r}")
+
+    @property
+    def steps_per_frame(self) -> int:
+        from wirecraft.envs.env import CONTROL_HZ
+
+        return CONTROL_HZ // self.fps
+
+    def episode_seed(self, attempt: int) -> int:
+        """The reset seed of episode attempt ``attempt`` (independent of workers and order)."""
+        from wirecraft.envs.vector import env_seed
+
+        return env_seed(self.seed, attempt)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> CollectSettings:
+        return cls(**data)
+
+
+def _with_defaults(family: str, kwargs: dict) -> dict:
+    """``kwargs`` completed with the environment's and task's defaults (scalars only), so that
+    a flag given explicitly at its default value reads as the same settings on resume."""
+    import inspect
+
+    from wirecraft.envs.env import WireCraftEnv
+    from wirecraft.tasks import TASKS
+
+    full = {}
+    for func in (WireCraftEnv.__init__, TASKS.get(family).__init__):
+        for name, param in inspect.signature(func).parameters.items():
+            default = param.default
+            if name in ("self", "task", "obs_mode", "image_size", "render_mode"):
+                continue
+            if isinstance(default, (str, int, float)) and not isinstance(default, bool):
+                full[name] = default
+    full.update(kwargs)
+    return dict(sorted(full.items()))
+
+
+# -- one episode (runs in a worker) ----------------------------------------------------------
+_CACHE: dict[str, tuple] = {}  # settings -> (env, recorder, expert class); one per process
+
+
+def _episode_tools(settings: CollectSettings):
+    key = json.dumps(settings.to_dict(), sort_keys=True)
+    if key not in _CACHE:
+        import wirecraft
+        from wirecraft.experts import expert_class
+
+        env = wirecraft.make(
+            settings.task, obs_mode="state", image_size=settings.image_size, **settings.env_kwargs
+        )
+        recorder = EpisodeRecorder(env, settings.fps, source="scripted")
+        _CACHE[key] = (env, recorder, expert_class(settings.task))
+    return _CACHE[key]
+
+
+def _expert_config(expert_cls, seed: int | None = None):
+    """The expert's default configuration (a ``seed`` field, if it has one, set to ``seed``)."""
+    config = expert_cls.config_class()
+    if seed is not None and "seed" in {f.name for f in dataclasses.fields(config)}:
+        config = dataclasses.replace(config, seed=int(seed))
+    return config
+
+
+def expert_description(task: str) -> dict:
+    """The scripted expert of ``task`` and its configuration (stored with the dataset: a
+    changed expert would make different episodes, so ``--resume`` refuses it)."""
+    from wirecraft.experts import expert_class
+
+    expert_cls = expert_class(task)
+    config = dataclasses.asdict(_expert_config(expert_cls))
+    config.pop("seed", None)
+    return {"class": expert_cls.__name__, "config": json.loads(json.dumps(config, default=str))}
+
+
+def run_episode(settings: CollectSettings | dict, attempt: int) -> Episode:
+    """Generate episode attempt ``attempt`` with the scripted expert; its ``info`` holds
+    ``attempt``, ``end`` (success_held, time_limit, diverged or terminated), ``diverged``, and
+    the wall / CPU seconds of physics + expert and of rendering."""
+    from wirecraft.envs.env import CONTROL_HZ
+
+    if isinstance(settings, dict):
+        settings = CollectSettings.from_dict(settings)
+    env, recorder, expert_cls = _episode_tools(settings)
+    seed = settings.episode_seed(attempt)
+    hold_steps = int(round(settings.success_hold_s * CONTROL_HZ))
+    tic, cpu = time.perf_counter(), time.process_time()
+    render0, render_cpu0 = recorder.render_seconds, recorder.render_cpu_seconds
+    try:
+        obs, info = env.reset(seed=seed)
+    except RuntimeError as err:  # the scene diverged while settling: a failed attempt
+        recorder.clear(seed)
+        zero = dict.fromkeys(("physics_s", "render_s", "physics_cpu_s", "render_cpu_s"), 0.0)
+        info = {"attempt": int(attempt), "end": f"reset failed: {err}", "diverged": True}
+        return recorder.finish({**info, **zero})
+    # The expert's own random choices (diversity) are seeded by the episode's seed too.
+    expert = expert_cls(env, _expert_config(expert_cls, seed), seed=seed)
+    recorder.start(info, seed)
+    held, end = 0, "time_limit"
+    while True:
+        action = expert.act(obs)[0]
+        obs, _, terminated, truncated, info = env.step(action)
+        recorder.record(action, info)
+        held = held + 1 if info["success"] else 0
+        if info["diverged"]:
+            end = "diverged"
+            break
+        if terminated or truncated:
+            end = "terminated" if terminated else "time_limit"
+            break
+        if hold_steps and held >= hold_steps and recorder.at_frame_boundary:
+            end = "success_held"
+            break
+    wall, cpu = time.perf_counter() - tic, time.process_time() - cpu
+    render = recorder.render_seconds - render0
+    render_cpu = recorder.render_cpu_seconds - render_cpu0
+    episode = recorder.finish(
+        {
+            "attempt": int(attempt),
+            "end": end,
+            "diverged": bool(info["diverged"]),
+            "physics_s": wall - render,
+            "render_s": render,
+            "physics_cpu_s": cpu - render_cpu,
+            "render_cpu_s": render_cpu,
+        }
+    )
+    episode.success = bool(episode.success and not info["diverged"])
+    return episode
+
+
+def _worker_init() -> None:
+    # Ctrl-C in a terminal reaches the whole process group: only the main process decides.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+# -- executors: where episodes are generated ---------------------------------------------------
+class _InProcess:
+    window = 1
+
+    def __init__(self, settings: CollectSettings) -> None:
+        self.settings = settings
+
+    def submit(self, attempt: int):
+        return attempt
+
+    def result(self, handle, timeout: float):
+        return run_episode(self.settings, handle)
+
+    def close(self) -> None:
+        pass
+
+
+class _ProcessPool:
+    def __init__(self, settings: CollectSettings, workers: int) -> None:
+        import multiprocessing
+
+        self.settings = settings.to_dict()
+        self.window = 2 * workers
+        self.pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_worker_init)
+
+    def submit(self, attempt: int):
+        return self.pool.apply_async(run_episode, (self.settings, attempt))
+
+    def result(self, handle, timeout: float):
+        import multiprocessing
+
+        try:
+            return handle.get(timeout)
+        except multiprocessing.TimeoutError:
+            return None
+
+    def close(self) -> None:
+        self.pool.terminate()  # queued attempts past the target are not needed
+        self.pool.join()
+
+
+class _Ray:
+    def __init__(self, settings: CollectSettings, address: str, workers: int) -> None:
+        try:
+            import ray
+        except ImportError as err:
+            raise RuntimeError(f"--ray needs the ray package: {err}") from None
+        self.ray = ray
+        self.owns = not ray.is_initialized()
+        if self.owns:
+            if address == "local":
+                ray.init(
+                    num_cpus=max(1, workers),
+                    include_dashboard=False,
+                    log_to_driver=False,
+                    logging_level="warning",
+                )
+            else:
+                ray.init(address=address, log_to_driver=False, logging_level="warning")
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        self.window = 2 * max(1, cpus)
+        self.settings = settings.to_dict()
+        self.remote = ray.remote(num_cpus=1)(run_episode)
+        self.pending: set = set()
+
+    def submit(self, attempt: int):
+        ref = self.remote.remote(self.settings, attempt)
+        self.pending.add(ref)
+        return ref
+
+    def result(self, handle, timeout: float):
+        ready, _ = self.ray.wait([handle], timeout=timeout)
+        if not ready:
+            return None
+        self.pending.discard(handle)
+        return self.ray.get(handle)
+
+    def close(self) -> None:
+        for ref in self.pending:
+            self.ray.cancel(ref, force=True)
+        self.pending.clear()
+        if self.owns:
+            self.ray.shutdown()
+
+
+# -- signals ------------------------------------------------------------------------------
+class _StopOnSignal:
+    """SIGINT / SIGTERM set ``stop`` (the main loop ends cleanly); a second one interrupts."""
+
+    def __init__(self) -> None:
+        self.stop = None  # the signal's name once one arrived
+        self._previous = {}
+
+    def _handle(self, signum, frame) -> None:
+        if self.stop is not None:
+            raise KeyboardInterrupt
+        self.stop = signal.Signals(signum).name
+        print(
+            f"\n{self.stop}: finishing the episode being written, then saving the dataset "
+            "(send it again to stop at once)",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    def __enter__(self) -> _StopOnSignal:
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+# -- the collection ------------------------------------------------------------------------
+@dataclass
+class CollectReport:
+    out: str
+    target: int
+    saved: int = 0  # episodes in the dataset
+    saved_successes: int = 0
+    saved_failures: int = 0  # kept with keep_failures
+    dropped_failures: int = 0
+    attempts: int = 0  # attempts made so far (all runs of this dataset)
+    new_episodes: int = 0  # saved by this run
+    new_attempts: int = 0
+    new_frames: int = 0
+    seconds: float = 0.0
+    first_save_s: float | None = None  # when this run saved its first episode (start-up)
+    interrupted: str | None = None  # the signal that stopped this run
+    gave_up: bool = False  # max_attempts reached before the target
+    timing: dict = field(default_factory=dict)
+
+    @property
+    def success_rate(self) -> float:
+        successes = self.saved_successes
+        failures = self.saved_failures + self.dropped_failures
+        return successes / (successes + failures) if successes + failures else 0.0
+
+    def to_dict(self) -> dict:
+        data = dataclasses.asdict(self)
+        data["success_rate"] = round(self.success_rate, 4)
+        hours = self.seconds / 3600.0
+        data["episodes_per_hour"] = round(self.new_episodes / hours, 1) if hours > 0 else None
+        return data
+
+
+def _settings_path(out: Path) -> Path:
+    return out / SETTINGS_FILE
+
+
+def _differences(stored: dict, wanted: dict) -> list[str]:
+    keys = sorted(set(stored) | set(wanted))
+    return [
+        f"{k}: {stored.get(k)!r} -> {wanted.get(k)!r}"
+        for k in keys
+        if stored.get(k) != wanted.get(k)
+    ]
+
+
+def _open_writer(
+    settings: CollectSettings, out: Path, resume: bool, features, robot_type, commit_every
+):
+    from wirecraft.datasets.writer import EpisodeWriter
+
+    existing = out.exists() and (not out.is_dir() or any(out.iterdir()))
+    if existing and not resume:
+        raise ValueError(
+            f"--out {out} exists and is not empty: use --resume to continue that dataset, "
+            "or choose another folder"
+        )
+    if existing:
+        path = _settings_path(out)
+        if not path.is_file():
+            raise ValueError(
+                f"{out} is not a dataset written by wirecraft collect (no {SETTINGS_FILE})"
+            )
+        stored = json.loads(path.read_text())
+        diff = _differences(stored["settings"], settings.to_dict())
+        diff += _differences(stored.get("expert", {}), expert_description(settings.task))
+        if diff:
+            raise ValueError(
+                f"{out} was collected with other settings; refusing to mix them ("
+                + "; ".join(diff)
+                + ")"
+            )
+        return EpisodeWriter.open(out, commit_every=commit_every)
+    progress = {"next_attempt": 0, "attempts": 0, "dropped_failures": 0, "episodes": []}
+    writer = EpisodeWriter.create(
+        out,
+        features,
+        settings.fps,
+        robot_type=robot_type,
+        commit_every=commit_every,
+        vcodec=settings.vcodec,
+        progress=progress,
+    )
+    from wirecraft.datasets.writer import write_json_atomic
+
+    write_json_atomic(
+        _settings_path(out),
+        {
+            "schema_version": schema.SCHEMA_VERSION,
+            "sources": list(schema.SOURCES),
+            "source": "scripted",
+            "settings": settings.to_dict(),
+            "expert": expert_description(settings.task),
+        },
+    )
+    return writer
+
+
+def collect(
+    settings: CollectSettings,
+    out: str | os.PathLike,
+    episodes: int,
+    *,
+    workers: int = 2,
+    ray_address: str | None = None,
+    resume: bool = False,
+    commit_every: int = 10,
+    max_attempts: int | None = None,
+    progress_bar: bool = True,
+) -> CollectReport:
+    """Collect until ``episodes`` episodes are in the dataset at ``out`` (see the module
+    docstring); returns the report.  ``max_attempts`` (total, over every run of this dataset;
+    default ``2 * episodes + 10``) bounds the attempts when the expert keeps failing."""
+    from tqdm import tqdm
+
+    for name, value, low in (("episodes", episodes, 1), ("workers", workers, 0)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    if max_attempts is None:
+        max_attempts = 2 * episodes + 10
+    if isinstance(max_attempts, bool) or not isinstance(max_attempts, int) or max_attempts < 1:
+        raise ValueError(f"max_attempts must be an integer >= 1, got {max_attempts!r}")
+    out = Path(out)
+    start = time.perf_counter()
+    # Build the environment here first: bad task keywords fail now, with a clear message,
+    # and the features come from the environment itself.
+    env, recorder, _ = _episode_tools(settings)
+    features = recorder.features()
+    writer = _open_writer(settings, out, resume, features, env.unwrapped.robot_name, commit_every)
+    progress = dict(writer.progress)
+    records: list[dict] = list(progress.get("episodes", []))
+    report = CollectReport(out=str(out), target=episodes, saved=writer.num_episodes)
+    report.saved_successes = sum(1 for r in records if r["success"])
+    report.saved_failures = len(records) - report.saved_successes
+    report.dropped_failures = int(progress.get("dropped_failures", 0))
+    next_attempt = int(progress.get("next_attempt", 0))
+    report.attempts = next_attempt
+    timing = {k: 0.0 for k in ("physics_s", "render_s", "physics_cpu_s", "render_cpu_s")}
+    timing.update(write_s=0.0, write_cpu_s=0.0)
+
+    def current_progress() -> dict:
+        return {
+            "next_attempt": next_attempt,
+            "attempts": report.attempts,
+            "dropped_failures": report.dropped_failures,
+            "episodes": list(records),
+        }
+
+    executor = None
+    bar = tqdm(
+        total=episodes,
+        initial=min(report.saved, episodes),
+        desc="collect",
+        unit="episode",
+        disable=not progress_bar,
+        dynamic_ncols=True,
+    )
+    try:
+        with _StopOnSignal() as stopper:
+            if report.saved < episodes and next_attempt < max_attempts:
+                if ray_address:
+                    executor = _Ray(settings, ray_address, workers)
+                elif workers == 0:
+                    executor = _InProcess(settings)
+                else:
+                    executor = _ProcessPool(settings, workers)
+            pending: deque = deque()
+            submitted = next_attempt
+            while executor is not None and report.saved < episodes and not stopper.stop:
+                while len(pending) < executor.window and submitted < max_attempts:
+                    pending.append((submitted, executor.submit(submitted), time.monotonic()))
+                    submitted += 1
+                if not pending:
+                    report.gave_up = True
+                    break
+                attempt, handle, since = pending[0]
+                try:
+                    episode = executor.result(handle, POLL_SECONDS)
+                    if episode is None and time.monotonic() - since > ATTEMPT_TIMEOUT_S:
+                        raise RuntimeError(
+                            f"episode attempt {attempt} gave no result in {ATTEMPT_TIMEOUT_S:.0f}"
+                            " s (did a worker die?)"
+                        )
+                except Exception:
+                    # The writer is consistent: keep what was saved, then report the failure.
+                    executor.close()
+                    executor = None
+                    writer.close(current_progress())
+                    raise
+                if episode is None or stopper.stop:
+                    continue
+                pending.popleft()
+                if pending:  # the next attempt's clock starts when it reaches the head
+                    pending[0] = (*pending[0][:2], time.monotonic())
+                next_attempt = attempt + 1
+                report.attempts = next_attempt
+                report.new_attempts += 1
+                for key in ("physics_s", "render_s", "physics_cpu_s", "render_cpu_s"):
+                    timing[key] += episode.info[key]
+                keep = episode.success or settings.keep_failures
+                if keep and len(episode):
+                    tic, cpu = time.perf_counter(), time.process_time()
+                    records.append(
+                        {
+                            "index": report.saved,
+                            "attempt": attempt,
+                            "seed": episode.seed,
+                            "success": episode.success,
+                            "frames": len(episode),
+                            "control_steps": episode.control_steps,
+                            "end": episode.info["end"],
+                        }
+                    )
+                    writer.add_episode(episode, progress=current_progress())
+                    timing["write_s"] += time.perf_counter() - tic
+                    timing["write_cpu_s"] += time.process_time() - cpu
+                    report.saved += 1
+                    report.new_episodes += 1
+                    report.new_frames += len(episode)
+                    if report.first_save_s is None:
+                        report.first_save_s = time.perf_counter() - start
+                    if episode.success:
+                        report.saved_successes += 1
+                    else:
+                        report.saved_failures += 1
+                    bar.update(1)
+                else:
+                    report.dropped_failures += 1
+                    writer.progress = current_progress()
+                bar.set_postfix(
+                    attempts=report.attempts,
+                    success=f"{report.success_rate:.0%}",
+                    refresh=False,
+                )
+            if report.saved < episodes and not stopper.stop and next_attempt >= max_attempts:
+                report.gave_up = True
+            report.interrupted = stopper.stop
+            if executor is not None:
+                executor.close()
+                executor = None
+            tic, cpu = time.perf_counter(), time.process_time()
+            writer.close(current_progress())
+            timing["write_s"] += time.perf_counter() - tic
+            timing["write_cpu_s"] += time.process_time() - cpu
+    except BaseException:
+        if executor is not None:
+            executor.close()
+        raise
+    finally:
+        bar.close()
+    report.seconds = time.perf_counter() - start
+    report.timing = {k: round(v, 3) for k, v in timing.items()}
+    return report
+
+
+def summary_lines(report: CollectReport) -> list[str]:
+    d = report.to_dict()
+    lines = [
+        f"dataset {report.out}: {report.saved} episodes ({report.saved_successes} successful, "
+        f"{report.saved_failures} failed kept); {report.dropped_failures} failed dropped; "
+        f"{report.attempts} attempts, success rate {report.success_rate:.1%}",
+        f"this run: {report.new_episodes} episodes in {report.seconds:.1f} s"
+        + (f" ({d['episodes_per_hour']:.0f} episodes/hour)" if d["episodes_per_hour"] else ""),
+    ]
+    n = max(report.new_attempts, 1)
+    t = report.timing
+    if t:
+        lines.append(
+            "per attempt, summed over workers (wall / CPU s): physics+expert "
+            f"{t['physics_s'] / n:.2f} / {t['physics_cpu_s'] / n:.2f}, rendering "
+            f"{t['render_s'] / n:.2f} / {t['render_cpu_s'] / n:.2f}; per saved episode, "
+            f"writing+encoding {t['write_s'] / max(report.new_episodes, 1):.2f} / "
+            f"{t['write_cpu_s'] / max(report.new_episodes, 1):.2f}"
+        )
+    if report.interrupted:
+        lines.append(f"interrupted by {report.interrupted}: continue with --resume")
+    if report.gave_up:
+        lines.append(
+            f"gave up after {report.attempts} attempts with {report.saved} of {report.target} "
+            "episodes: the expert fails too often (see --keep-failures, --max-attempts)"
+        )
+    return lines
+
+
+def episode_sources(dataset) -> list[str]:
+    """The data source of each episode of a loaded LeRobotDataset (from ``source``)."""
+    codes = np.asarray(dataset.hf_dataset["source"]).reshape(-1)
+    episode = np.asarray(dataset.hf_dataset["episode_index"]).reshape(-1)
+    result = {}
+    for e, c in zip(episode.tolist(), codes.tolist(), strict=True):
+        result.setdefault(e, schema.source_name(c))
+    return [result[e] for e in sorted(result)]

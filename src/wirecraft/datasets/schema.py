@@ -1,0 +1,143 @@
+"""The one dataset schema that every data source (scripted, rl, teleop, real) writes.
+
+LeRobot v3 features (``features_for``); every feature is documented in docs/datasets.md:
+
+- ``observation.state`` (dof + 1) float32: joint angles (rad) then the gripper pad gap (m)
+  (``RobotHandle.dataset_state``);
+- ``action`` (dof + 1) float32: the arm servo targets the controller resolved (IK for the
+  Cartesian modes; rad) then the commanded pad gap (m) (``Controller.dataset_action``);
+- ``observation.cartesian_state`` (7,) float32: TCP position (m) and orientation quaternion
+  ``(qw, qx, qy, qz)`` (MuJoCo's order, scalar first) in the robot base frame;
+- ``observation.images.cam_side`` / ``observation.images.cam_wrist``: RGB videos (H, W, 3);
+- ``action.env`` (steps_per_frame * env action dim,) float64: the actions passed to
+  ``env.step`` during the frame's control steps, in order (exact replay);
+- the task's success flags (bool, one per frame): ``success`` and, for insertion,
+  ``reach_success`` and ``insert_success``;
+- ``source`` int64: index into ``SOURCES``; ``seed`` int64: the episode's reset seed (-1: none).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+SCHEMA_VERSION = 1
+SOURCES = ("scripted", "rl", "teleop", "real")
+CAMERAS = {"side": "observation.images.cam_side", "wrist": "observation.images.cam_wrist"}
+STATE_KEY = "observation.state"
+ACTION_KEY = "action"
+CARTESIAN_KEY = "observation.cartesian_state"
+ENV_ACTION_KEY = "action.env"
+SOURCE_KEY = "source"
+SEED_KEY = "seed"
+NO_SEED = -1
+# Success flags per task family (the keys of the environment's ``info``).
+TASK_FLAGS = {
+    "insertion": ("success", "reach_success", "insert_success"),
+    "routing": ("success",),
+    "seating": ("success",),
+}
+# Arm part of the environment's action per control mode (None: one per joint); + 1 gripper.
+ARM_ACTION_DIMS = {"joint": None, "cartesian": 6, "cartesian_fixed": 3}
+CARTESIAN_NAMES = ["x", "y", "z", "qw", "qx", "qy", "qz"]
+
+
+def source_code(source: str) -> int:
+    """The integer stored in ``source`` for a data source name."""
+    if source not in SOURCES:
+        raise ValueError(f"unknown data source {source!r}; valid: {', '.join(SOURCES)}")
+    return SOURCES.index(source)
+
+
+def source_name(code: int) -> str:
+    """The data source name of a stored ``source`` integer."""
+    code = int(code)
+    if not 0 <= code < len(SOURCES):
+        raise ValueError(f"unknown data source code {code}; valid: 0..{len(SOURCES) - 1}")
+    return SOURCES[code]
+
+
+def success_flags(task: str) -> tuple[str, ...]:
+    if task not in TASK_FLAGS:
+        raise ValueError(f"unknown task {task!r}; valid: {', '.join(TASK_FLAGS)}")
+    return TASK_FLAGS[task]
+
+
+def env_action_dim(robot: str, control: str) -> int:
+    """Size of the environment's action for ``robot`` under ``control`` (gripper included)."""
+    from wirecraft.assets.robots import ROBOTS
+
+    if control not in ARM_ACTION_DIMS:
+        raise ValueError(f"unknown control {control!r}; valid: {', '.join(ARM_ACTION_DIMS)}")
+    arm = ARM_ACTION_DIMS[control]
+    return (ROBOTS.get(robot).dof if arm is None else arm) + 1
+
+
+def features_for(
+    robot: str,
+    image_size: int,
+    *,
+    task: str = "insertion",
+    control: str = "cartesian",
+    steps_per_frame: int = 2,
+) -> dict[str, dict]:
+    """LeRobot ``features`` of the WireCraft schema for one robot, task family and control mode.
+
+    ``steps_per_frame``: control steps (60 Hz) per recorded frame (2 at 30 fps)."""
+    from wirecraft.assets.robots import ROBOTS
+
+    dof = ROBOTS.get(robot).dof
+    if isinstance(image_size, bool) or not isinstance(image_size, int) or image_size < 16:
+        raise ValueError(f"image_size must be an integer >= 16, got {image_size!r}")
+    if isinstance(steps_per_frame, bool) or not isinstance(steps_per_frame, int):
+        raise ValueError(f"steps_per_frame must be an integer, got {steps_per_frame!r}")
+    if steps_per_frame < 1:
+        raise ValueError(f"steps_per_frame must be >= 1, got {steps_per_frame}")
+    joints = [f"joint{i + 1}" for i in range(dof)]
+    env_dim = env_action_dim(robot, control)
+    features: dict[str, dict] = {
+        STATE_KEY: {"dtype": "float32", "shape": (dof + 1,), "names": [*joints, "gripper_opening"]},
+        ACTION_KEY: {"dtype": "float32", "shape": (dof + 1,), "names": [*joints, "gripper_gap"]},
+        CARTESIAN_KEY: {"dtype": "float32", "shape": (7,), "names": list(CARTESIAN_NAMES)},
+        ENV_ACTION_KEY: {
+            "dtype": "float64",
+            "shape": (steps_per_frame * env_dim,),
+            "names": [f"step{s}_{i}" for s in range(steps_per_frame) for i in range(env_dim)],
+        },
+    }
+    for camera_key in CAMERAS.values():
+        features[camera_key] = {
+            "dtype": "video",
+            "shape": (image_size, image_size, 3),
+            "names": ["height", "width", "channels"],
+        }
+    for flag in success_flags(task):
+        features[flag] = {"dtype": "bool", "shape": (1,), "names": None}
+    features[SOURCE_KEY] = {
+        "dtype": "int64",
+        "shape": (1,),
+        "names": None,
+        "info": {"codes": {str(i): name for i, name in enumerate(SOURCES)}},
+    }
+    features[SEED_KEY] = {"dtype": "int64", "shape": (1,), "names": None}
+    return features
+
+
+def quaternion(rot: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(4,) unit quaternion (w, x, y, z) of rotation matrix ``rot``, with the sign that puts it
+    in the hemisphere of ``reference``'s quaternion.
+
+    q and -q are the same rotation; a sign fixed by the reference (the robot's home TCP
+    orientation) keeps the feature continuous over an episode except for rotations ~180 deg
+    away from home, whereas ``w >= 0`` would flip it right at the pointing-down home (w = 0)."""
+    q = np.empty(4)
+    mujoco.mju_mat2Quat(q, np.asarray(rot, dtype=float).reshape(9))
+    ref = np.empty(4)
+    mujoco.mju_mat2Quat(ref, np.asarray(reference, dtype=float).reshape(9))
+    return -q if float(q @ ref) < 0.0 else q
+
+
+def cartesian_state(robot, model, data) -> np.ndarray:
+    """(7,) TCP position (m) and quaternion (w, x, y, z) in the robot base frame."""
+    pos, rot = robot.tcp_pose_base(model, data)
+    return np.concatenate([pos, quaternion(rot, robot.home_tcp_rot)])

@@ -1,0 +1,425 @@
+"""Demonstration datasets: the LeRobot v3 schema, ``wirecraft collect`` and its safety nets.
+
+The truth each check compares against: lerobot's own loader (``LeRobotDataset``), an
+independent run of the same seeded episode through the plain gymnasium API (states, servo
+targets, success flags and the environment's own rendered images), and a replay of the stored
+environment actions.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import wirecraft
+from wirecraft.cli import main
+from wirecraft.datasets import schema
+from wirecraft.datasets.collect import (
+    CollectSettings,
+    collect,
+    episode_sources,
+    run_episode,
+    summary_lines,
+)
+from wirecraft.datasets.recorder import Episode
+from wirecraft.datasets.writer import DEFAULT_REPO_ID, EpisodeWriter, read_commit
+from wirecraft.envs.vector import env_seed
+from wirecraft.experts import InsertionExpert
+
+SEED = 7
+SIZE = 64  # small images keep the tests fast; the pipeline is the same at 224
+SETTINGS = CollectSettings(
+    task="insertion", env_kwargs={"connector": "ethernet"}, image_size=SIZE, seed=SEED
+)
+CLI_ARGS = [
+    "collect",
+    "--task",
+    "insertion",
+    "--connector",
+    "ethernet",
+    "--image-size",
+    str(SIZE),
+    "--seed",
+    str(SEED),
+]
+# Decoded video vs. rendered frames, mean absolute error per frame on the 0..255 scale
+# (h264, CRF 18, yuv420p: chroma subsampling and quantization).  Measured up to ~4 at 64 x 64
+# (wrist camera, sharp edges at a small size), ~1.6 at 224 x 224.
+VIDEO_TOLERANCE = 6.0
+
+
+def load(root):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    return LeRobotDataset(DEFAULT_REPO_ID, root=root, video_backend="pyav")
+
+
+def column(dataset, key: str, episode: int) -> np.ndarray:
+    """One episode's values of a non-video feature, as stored (no dtype conversion)."""
+    table = dataset.hf_dataset.with_format("arrow")[:]
+    rows = np.flatnonzero(table.column("episode_index").to_numpy() == episode)
+    values = table.column(key).to_numpy(zero_copy_only=False)[rows]
+    return np.stack(values) if values.dtype == object else values
+
+
+def episode_rows(dataset, episode: int) -> np.ndarray:
+    index = np.asarray(dataset.hf_dataset.with_format("arrow")[:]["episode_index"])
+    return np.flatnonzero(index == episode)
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """Two episodes collected in this process: the uninterrupted run others compare with."""
+    root = tmp_path_factory.mktemp("datasets") / "reference"
+    report = collect(SETTINGS, root, 2, workers=0, progress_bar=False)
+    return root, report
+
+
+def independent_run(attempt: int, frames: int):
+    """The same seeded episode through the gymnasium API with the environment's own images:
+    per frame the state, rendered side / wrist images and success flags before the frame's
+    two control steps, and the servo targets after them."""
+    env = wirecraft.make("insertion", connector="ethernet", obs_mode="state_rgb", image_size=SIZE)
+    u = env.unwrapped
+    seed = env_seed(SEED, attempt)
+    obs, info = env.reset(seed=seed)
+    expert = InsertionExpert(env, seed=seed)  # its random choices follow the episode seed
+    run = {k: [] for k in ("state", "action", "side", "wrist", "success", "insert_success")}
+    for _ in range(frames):
+        run["state"].append(
+            np.concatenate(
+                [
+                    u.data.qpos[u.controller.index.arm_qpos],
+                    [u.robot.gripper_opening(u.model, u.data)],
+                ]
+            )
+        )
+        run["side"].append(obs["rgb_side"])
+        run["wrist"].append(obs["rgb_wrist"])
+        run["success"].append(info["success"])
+        run["insert_success"].append(info["insert_success"])
+        for _ in range(2):  # 60 Hz control, 30 fps
+            obs, _, _, _, info = env.step(expert.act(obs)[0])
+        run["action"].append(
+            np.concatenate([u.controller.joint_targets, [u.controller.gripper_target]])
+        )
+    env.close()
+    return {k: np.asarray(v) for k, v in run.items()}
+
+
+# -- schema ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("robot, dof", [("ur5", 6), ("panda", 7), ("wxai", 6)])
+def test_features_follow_the_robot(robot, dof):
+    features = schema.features_for(robot, 96, task="insertion", control="cartesian")
+    assert features["observation.state"]["shape"] == (dof + 1,)
+    assert features["action"]["shape"] == (dof + 1,)
+    assert features["observation.cartesian_state"]["shape"] == (7,)
+    assert features["observation.images.cam_side"]["shape"] == (96, 96, 3)
+    assert features["action.env"]["shape"] == (2 * 7,)
+    assert {"success", "reach_success", "insert_success", "source", "seed"} <= set(features)
+
+
+@pytest.mark.parametrize("control", ["joint", "cartesian", "cartesian_fixed"])
+def test_environment_action_size_matches_the_environment(control):
+    env = wirecraft.make("seating", robot="panda", control=control)
+    size = env.action_space.shape[0]
+    assert schema.env_action_dim("panda", control) == size
+    features = schema.features_for("panda", 32, task="seating", control=control, steps_per_frame=3)
+    assert features["action.env"]["shape"] == (3 * size,)
+    assert "insert_success" not in features
+
+
+def test_source_codes_round_trip_and_reject_unknown_names():
+    assert [schema.source_name(schema.source_code(s)) for s in schema.SOURCES] == list(
+        schema.SOURCES
+    )
+    with pytest.raises(ValueError, match="unknown data source"):
+        schema.source_code("simulated")
+    with pytest.raises(ValueError, match="image_size"):
+        schema.features_for("ur5", 8)
+
+
+def test_quaternion_is_unit_and_near_the_reference_hemisphere():
+    from scipy.spatial.transform import Rotation
+
+    home = np.diag([-1.0, 1.0, -1.0])  # TCP pointing down: w = 0, where a w >= 0 rule flips
+    for rotvec in np.random.default_rng(0).normal(scale=0.3, size=(20, 3)):
+        rot = Rotation.from_rotvec(rotvec).as_matrix() @ home
+        q = schema.quaternion(rot, home)
+        x, y, z, w = Rotation.from_matrix(rot).as_quat()
+        assert np.allclose(np.abs(q @ [w, x, y, z]), 1.0)  # same rotation, (w, x, y, z) order
+        assert q[2] > 0.5  # the home quaternion is (0, 0, 1, 0)
+
+
+# -- writing and reading back --------------------------------------------------------------------
+def test_dataset_loads_with_lerobot_with_the_schema(reference):
+    root, report = reference
+    assert report.saved == 2 and report.new_attempts >= 2 and not report.interrupted
+    dataset = load(root)
+    assert dataset.num_episodes == 2
+    expected = schema.features_for("ur5", SIZE, task="insertion", control="cartesian")
+    for key, feature in expected.items():
+        assert dataset.features[key]["dtype"] == feature["dtype"], key
+        assert tuple(dataset.features[key]["shape"]) == feature["shape"], key
+    assert dataset.fps == 30
+    records = read_commit(root)["progress"]["episodes"]
+    for e, record in enumerate(records):
+        rows = episode_rows(dataset, e)
+        assert len(rows) == record["frames"] == int(dataset.meta.episodes[e]["length"])
+        assert record["control_steps"] == 2 * record["frames"]
+        assert column(dataset, "seed", e).tolist() == [env_seed(SEED, record["attempt"])] * len(
+            rows
+        )
+        timestamps = column(dataset, "timestamp", e)
+        assert np.allclose(timestamps, np.arange(len(rows)) / 30.0, atol=1e-5)
+    item = dataset[0]
+    assert item["task"] == "Pick up the ethernet plug and insert it into the port."
+    assert item["observation.images.cam_wrist"].shape == (3, SIZE, SIZE)
+    assert episode_sources(dataset) == ["scripted", "scripted"]
+
+
+def test_states_actions_flags_and_images_match_an_independent_run(reference):
+    root, _ = reference
+    dataset = load(root)
+    record = read_commit(root)["progress"]["episodes"][0]
+    rows = episode_rows(dataset, 0)
+    run = independent_run(record["attempt"], len(rows))
+    assert np.array_equal(column(dataset, "observation.state", 0), run["state"].astype(np.float32))
+    assert np.array_equal(column(dataset, "action", 0), run["action"].astype(np.float32))
+    assert np.array_equal(column(dataset, "success", 0), run["success"])
+    assert np.array_equal(column(dataset, "insert_success", 0), run["insert_success"])
+    # The episode ends once success held 0.5 s (30 control steps: the last 14 observed
+    # frames at least); it starts without.
+    assert run["success"][-14:].all() and not run["success"][0]
+    for camera in ("side", "wrist"):
+        key = f"observation.images.cam_{camera}"
+        errors, shifted = [], []
+        for j in range(0, len(rows), 7):
+            decoded = dataset[int(rows[j])][key].numpy().transpose(1, 2, 0) * 255.0
+            errors.append(np.abs(decoded - run[camera][j]).mean())
+            shifted.append(np.abs(decoded - run[camera][(j + 40) % len(rows)]).mean())
+        assert max(errors) < VIDEO_TOLERANCE, (camera, max(errors))
+        # The images change over the episode: frames 40 apart (1.3 s) differ far more.
+        assert np.mean(shifted) > 2 * np.mean(errors), (camera, errors, shifted)
+
+
+def test_stored_environment_actions_replay_the_episode_exactly(reference):
+    root, _ = reference
+    dataset = load(root)
+    episode = 1
+    env_actions = column(dataset, "action.env", episode)
+    assert env_actions.dtype == np.float64
+    seed = int(column(dataset, "seed", episode)[0])
+    env = wirecraft.make("insertion", connector="ethernet")
+    u = env.unwrapped
+    env.reset(seed=seed)
+    states = []
+    for actions in env_actions:
+        states.append(u.robot.dataset_state(u.model, u.data))
+        for action in actions.reshape(2, -1):
+            env.step(action)
+    assert np.array_equal(np.asarray(states, np.float32), column(dataset, "observation.state", 1))
+
+
+def test_worker_processes_write_the_same_episodes(reference, tmp_path):
+    root, _ = reference
+    report = collect(SETTINGS, tmp_path / "pool", 1, workers=2, progress_bar=False)
+    assert report.saved == 1
+    ours, theirs = load(tmp_path / "pool"), load(root)
+    for key in ("observation.state", "action", "action.env", "observation.cartesian_state"):
+        assert np.array_equal(column(ours, key, 0), column(theirs, key, 0)), key
+
+
+def test_other_sources_write_the_same_schema(tmp_path):
+    """An RL rollout or teleoperation episode goes through the same writer."""
+    features = schema.features_for("ur5", 32, task="routing", control="cartesian")
+    rng = np.random.default_rng(0)
+    n = 5
+
+    def episode(source):
+        return Episode(
+            task="route the wire",
+            source=source,
+            seed=schema.NO_SEED,
+            state=rng.normal(size=(n, 7)),
+            action=rng.normal(size=(n, 7)),
+            cartesian_state=rng.normal(size=(n, 7)),
+            env_action=rng.uniform(-1, 1, size=(n, 14)),
+            images={
+                c: rng.integers(0, 255, (n, 32, 32, 3), dtype=np.uint8) for c in ("side", "wrist")
+            },
+            flags={"success": np.arange(n) > 2},
+        )
+
+    episodes = [episode("rl"), episode("teleop")]
+    with EpisodeWriter.create(tmp_path / "mixed", features, 30, commit_every=1) as writer:
+        for e in episodes:
+            writer.add_episode(e)
+    dataset = load(tmp_path / "mixed")
+    assert episode_sources(dataset) == ["rl", "teleop"]
+    assert np.allclose(column(dataset, "observation.state", 1), episodes[1].state, atol=1e-6)
+    assert column(dataset, "success", 0).tolist() == [False, False, False, True, True]
+
+
+def test_failed_episodes_are_dropped_or_kept_and_counted(tmp_path):
+    # A 1 s episode is too short for the expert: every attempt fails.
+    short = dict(env_kwargs={"connector": "ethernet", "episode_seconds": 1.0}, image_size=32)
+    dropped = collect(
+        CollectSettings(**short),
+        tmp_path / "drop",
+        1,
+        workers=0,
+        max_attempts=2,
+        progress_bar=False,
+    )
+    assert (dropped.saved, dropped.dropped_failures, dropped.attempts) == (0, 2, 2)
+    assert dropped.gave_up and any("gave up" in line for line in summary_lines(dropped))
+    kept = collect(
+        CollectSettings(**short, keep_failures=True),
+        tmp_path / "keep",
+        1,
+        workers=0,
+        progress_bar=False,
+    )
+    assert (kept.saved, kept.saved_failures, kept.dropped_failures) == (1, 1, 0)
+    dataset = load(tmp_path / "keep")
+    assert dataset.num_frames == 30  # 60 control steps at 30 fps
+    assert not column(dataset, "success", 0).any()
+    assert read_commit(tmp_path / "keep")["progress"]["episodes"][0]["end"] == "time_limit"
+
+
+# -- interruptions ---------------------------------------------------------------------------------
+# Subprocess runs use 10 fps and 32 x 32 images (a third of the rendering); they are compared
+# with ``run_episode`` of the same settings, which is what an uninterrupted run writes.
+QUICK = CollectSettings(
+    task="insertion", env_kwargs={"connector": "ethernet"}, image_size=32, fps=10, seed=SEED
+)
+QUICK_ARGS = [*CLI_ARGS[:-3], "32", "--seed", str(SEED), "--fps", "10"]
+
+
+def start_collect(out, *extra) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "wirecraft.cli", *QUICK_ARGS, "--out", str(out), *extra],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,  # its own process group: the test can end it with its workers
+    )
+
+
+def wait_for_episodes(out, count: int, proc: subprocess.Popen, timeout: float = 180.0) -> int:
+    """Wait until lerobot's info.json counts ``count`` saved episodes."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()[0]
+        try:
+            saved = json.loads((out / "meta" / "info.json").read_text())["total_episodes"]
+        except (FileNotFoundError, json.JSONDecodeError, KeyError):
+            saved = 0
+        if saved >= count:
+            return saved
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    raise AssertionError(f"fewer than {count} episodes after {timeout} s")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig, workers", [(signal.SIGINT, "1"), (signal.SIGTERM, "0")])
+def test_a_signal_leaves_every_finished_episode_loadable(tmp_path, sig, workers):
+    out = tmp_path / "ds"
+    proc = start_collect(out, "--episodes", "8", "--workers", workers)
+    wait_for_episodes(out, 2, proc)
+    proc.send_signal(sig)
+    output = proc.communicate(timeout=120)[0]
+    assert proc.returncode == 128 + sig, output
+    assert "--resume" in output
+    saved = json.loads((out / "meta" / "info.json").read_text())["total_episodes"]
+    dataset = load(out)  # no recovery step: finalized on the signal
+    assert 2 <= dataset.num_episodes == saved < 8
+    assert read_commit(out)["episodes"] == saved
+    last = dataset[len(dataset) - 1]  # the last frame of the last episode decodes
+    assert int(last["episode_index"]) == saved - 1
+
+
+@pytest.mark.slow
+def test_resume_after_a_hard_kill_completes_with_the_same_content(tmp_path):
+    out = tmp_path / "ds"
+    proc = start_collect(out, "--episodes", "4", "--workers", "0", "--commit-every", "2")
+    wait_for_episodes(out, 3, proc)  # the third is written, not committed
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.communicate(timeout=30)
+    assert read_commit(out)["episodes"] in (2, 4)  # 4 if it finished before the kill
+    result = subprocess.run(
+        [sys.executable, "-m", "wirecraft.cli", *QUICK_ARGS, "--out", str(out)]
+        + ["--episodes", "4", "--workers", "0", "--resume"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    dataset = load(out)
+    assert dataset.num_episodes == 4
+    records = read_commit(out)["progress"]["episodes"]
+    assert [r["index"] for r in records] == [0, 1, 2, 3]
+    for e in (1, 3):  # one committed before the kill, one written after the resume
+        fresh = run_episode(QUICK, records[e]["attempt"])
+        assert np.array_equal(column(dataset, "observation.state", e), fresh.state)
+        assert np.array_equal(column(dataset, "action.env", e), fresh.env_action)
+
+
+@pytest.mark.slow
+def test_ray_tasks_generate_the_same_episode(reference, tmp_path):
+    ray = pytest.importorskip("ray")
+    root, _ = reference
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    try:
+        report = collect(SETTINGS, tmp_path / "ray", 1, ray_address="auto", progress_bar=False)
+    finally:
+        ray.shutdown()
+    assert report.saved == 1
+    assert np.array_equal(
+        column(load(tmp_path / "ray"), "observation.state", 0),
+        column(load(root), "observation.state", 0),
+    )
+
+
+# -- bad input -------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--task", "knitting"], "unknown task"),
+        (["--connector", "hdmi"], "hdmi"),
+        (["--episodes", "0"], "episodes must be"),
+        (["--fps", "7"], "fps must divide"),
+        (["--workers", "-1"], "workers must be"),
+        (["--vcodec", "mpeg1"], "unknown vcodec"),
+        (["--control", "joint"], "drives control='cartesian'"),
+    ],
+)
+def test_bad_input_is_a_clear_error(args, message, tmp_path, capsys):
+    argv = ["collect", "--out", str(tmp_path / "ds"), "--image-size", str(SIZE), *args]
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "ds").exists()
+
+
+def test_existing_folder_needs_resume_and_the_same_settings(reference, tmp_path, capsys):
+    root, _ = reference
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    (busy / "notes.txt").write_text("mine")
+    assert main([*CLI_ARGS, "--out", str(busy)]) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert main([*CLI_ARGS, "--out", str(busy), "--resume"]) == 2
+    assert "not a dataset written by wirecraft collect" in capsys.readouterr().err
+    other_seed = [*CLI_ARGS[:-1], str(SEED + 1), "--out", str(root), "--resume"]
+    assert main(other_seed) == 2
+    assert "refusing to mix" in capsys.readouterr().err
+    assert load(root).num_episodes == 2  # untouched
