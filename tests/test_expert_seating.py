@@ -1,8 +1,9 @@
 """Channel seating: the task's success predicate on hand-laid cables under physics, and the
 scripted expert (action layout, phase sequence, success on the straight channel).
 
-The curved channel is not solved by the expert yet (docs/experts.md): that test is an expected
-failure.
+On the curved channel the expert presses the wire into the channel after laying it; it
+succeeds on 13 of 20 seeds (docs/experts.md), so one seed that it seats is tested and
+the general case stays an expected failure.
 """
 
 from __future__ import annotations
@@ -116,9 +117,49 @@ def test_seats_the_wire_in_the_straight_channel(seed):
     info, carried, phases, expert = run("straight", seed)
     assert carried, "the plug must be held while laying"
     assert {"settle", "close", "carry", "lay", "place", "release"} <= phases
+    # A wire that lies on the floor after the lay is not pressed: no time lost.
+    assert not phases & {"press_approach", "press_descend", "press"}
     assert expert.phase_names[0] == "done"
     assert not info["diverged"]
     assert info["success"] and info["fraction_inside"] >= 0.8
+
+
+def test_press_profile_keeps_the_pad_between_the_walls():
+    """Wherever the pressing pad goes below the wall tops, its whole footprint (the pad's box,
+    read from the model) lies over the channel floor between the walls (channel geometry)."""
+    env = wirecraft.make("seating", channel="curved")
+    expert = SeatingExpert(env)
+    for seed in range(3):
+        env.reset(seed=seed)
+        expert.reset()
+        task, model, data = env.unwrapped.task, env.unwrapped.model, env.unwrapped.data
+        world, arc = expert._path(0)
+        heights = expert._press_heights(0)
+        wall_top = task.placed.config.wall_height
+        deep = heights < wall_top
+        assert deep.any() and (~deep).any()  # the curved channel has both kinds of stretch
+        assert np.all(heights[~deep] > wall_top)
+        gid = model.geom(env.unwrapped.robot.pad_geom_names[0]).id
+        half = model.geom_size[gid][:2]
+        axes = data.geom_xmat[gid].reshape(3, 3)[:2, :2]
+        for point in world[deep]:
+            corners = [
+                np.array([*(point[:2] + axes @ (half * np.array([sx, sy]))), point[2] + 0.005])
+                for sx in (-1, 1)
+                for sy in (-1, 1)
+            ]
+            assert task.placed.contains(np.array(corners)).all()
+
+
+def test_presses_the_wire_into_the_curved_channel():
+    """Seed 2 (bends -10, -8, 13, -16 deg): the lay leaves the wire bridging the bends; the
+    pressing pass seats it."""
+    info, carried, phases, expert = run("curved", 2)
+    assert carried
+    assert {"press_descend", "press", "press_retreat"} <= phases
+    assert expert.phase_names[0] == "done"
+    assert not info["diverged"]
+    assert info["success"]
 
 
 def test_curved_runs_to_the_end_holding_the_plug():
@@ -129,7 +170,10 @@ def test_curved_runs_to_the_end_holding_the_plug():
     assert not info["diverged"]
 
 
-@pytest.mark.xfail(reason="the stiff wire bridges the curved channel's bends", strict=False)
+@pytest.mark.xfail(
+    reason="the pad cannot reach below the wall tops where the channel runs > ~16 deg off x",
+    strict=False,
+)
 def test_seats_the_wire_in_the_curved_channel():
     info, *_ = run("curved", 0)
     assert info["success"]

@@ -10,7 +10,9 @@ success flags or ``fraction_inside``):
   its ``centerline`` and ``floor``), ``plug_lead`` (wire between the channel's end and the
   plug when seated) and ``pad_contacts(model, data, held_contacts)`` (both pads on the plug);
 - ``env.robot``: ``tcp_pose_base(model, data)``, ``gripper_opening``, ``gripper_velocity``,
-  ``max_opening``;
+  ``max_opening``, ``pad_geom_names`` (the pressing pad's box: ``model.geom_size``,
+  ``data.geom_xpos/xmat``);
+- ``env.wire_points()``: the wire's centre line (only to decide whether to press);
 - ``env.controller``: its own target and base frame, through ``wirecraft.control.servo_action``.
 
 The TCP orientation is the one ``cartesian_fixed`` holds (pointing down, pads closing along the
@@ -23,8 +25,22 @@ randomized delay: the gentle, delayed grasp) -> close -> lift (straight up) -> c
 to above the channel's path, ``lay_from`` metres of arc before its end) -> lay (the plug follows
 the channel's centre line to ``plug_lead`` beyond its end while coming down, slowly, so the
 wire behind it drops between the walls) -> place (the wire end down to the height of a wire
-resting on the channel floor) -> release -> retreat -> done.  A grasp that does not hold after
-the lift sends the environment back to ``approach`` (at most ``max_grasp_retries`` times).
+resting on the channel floor) -> release -> retreat -> done, or, when a wire point still rides
+``press_needed`` above resting on the floor (the expert's own geometric check), the pressing
+pass: press_approach -> press_descend -> press -> press_retreat -> done.  A grasp that does not
+hold after the lift sends the environment back to ``approach`` (at most ``max_grasp_retries``
+times).
+
+Pressing pass (why: held only at the bolted clamp and the plug, the stiff wire keeps one smooth
+shape that bridges the curved channel's bends on the wall tops).  With the pads open, one pad
+(its 22 x 6 mm bottom face; the TCP orientation is fixed) slides along the channel's centre
+line from ``press_from`` past the entry to ``press_stop`` before the end.  Where its whole
+footprint fits between the walls (the channel runs within ~16 deg of the pad's long axis, base
+x) it goes down to the top of a seated wire (``press_squeeze``) and pushes the wire onto the
+floor, where the walls then hold it; elsewhere (and ``press_window`` of arc around such
+stretches) it passes ``press_clearance`` above the wall tops.  The height profile is computed
+once per episode from the channel geometry and the pad's box in the model
+(``_press_heights``).
 
 Diversity (from ``config.seed``): the settle delay before closing and the lay's speed (a
 per-episode slow-down factor) are drawn per episode.
@@ -63,7 +79,17 @@ class SeatingExpertConfig:
     lay_speed: float = 0.002  # m per step along the path (before the slow-down)
     lay_slowdown: tuple[float, float] = (1.0, 1.6)  # per-episode lay time factor (diversity)
     place_speed: float = 0.001  # m per step
-    retreat: float = 0.06  # m straight up after releasing
+    retreat: float = 0.03  # m straight up after releasing
+    press_from: float = 0.03  # m of path arc (from the entry) where the pressing pass starts
+    press_clearance: float = 0.0015  # m: pad bottom above the wall tops where it cannot fit
+    press_squeeze: float = 0.0005  # m: pad bottom below a seated wire's top where it fits
+    press_margin: float = 0.0  # m: the pad's footprint stays this far inside the walls
+    press_window: float = 0.006  # m of arc: the pad rises this far before a misfit
+    press_stop: float = 0.005  # m of arc before the channel's end where the pass ends
+    press_needed: float = 0.003  # m: a wire point this far above resting calls for pressing
+    press_hover: float = 0.02  # m: pad bottoms above the press height before coming down
+    press_speed: float = 0.003  # m per step along the path
+    final_retreat: float = 0.05  # m straight up after the pressing pass
     max_grasp_retries: int = 2
     seed: int = 0  # diversity (settle delay, lay slow-down)
 
@@ -79,6 +105,10 @@ PHASES = (
     Phase("place", pos_tol=0.002, dwell=4, timeout=60),
     Phase("release", pos_tol=np.inf, rot_tol=np.inf, dwell=3, timeout=30),
     Phase("retreat", pos_tol=0.01, dwell=1, timeout=40),
+    Phase("press_approach", pos_tol=0.004, dwell=1, timeout=80),
+    Phase("press_descend", pos_tol=0.002, dwell=2, timeout=40),
+    Phase("press", pos_tol=np.inf, rot_tol=np.inf, dwell=1, timeout=200),
+    Phase("press_retreat", pos_tol=0.01, dwell=1, timeout=40),
     Phase("done"),
 )
 
@@ -102,11 +132,16 @@ class SeatingExpert(ScriptedExpert):
         self.settle_needed = np.zeros(self.num_envs, int)
         self.lay_speed = np.zeros(self.num_envs)
         self.lay_arc = np.zeros(self.num_envs)  # arc of the channel the plug has been laid to
+        self.press_arc = np.zeros(self.num_envs)  # arc the pressing pad has reached
+        self._press_profile: list = [None] * self.num_envs
 
     def _reset_state(self, mask) -> None:
         cfg, count = self.config, int(mask.sum())
         self.grasp_retries[mask] = 0
         self.lay_arc[mask] = 0.0
+        self.press_arc[mask] = 0.0
+        for i in np.flatnonzero(mask):
+            self._press_profile[i] = None
         self.settle_needed[mask] = cfg.settle_steps + self.rng.integers(
             0, cfg.settle_jitter + 1, count
         )
@@ -222,7 +257,100 @@ class SeatingExpert(ScriptedExpert):
         if name == "release":
             gap = env.robot.gripper_opening(env.model, env.data)
             return hold, None, cfg.place_speed, opened, bool(gap > 0.9 * cfg.pre_open)
-        return hold + cfg.retreat * up, None, cfg.descend_speed, opened, None
+        if name == "retreat":
+            return hold + cfg.retreat * up, None, cfg.descend_speed, opened, None
+        if name == "press_approach":
+            target = self._press_target(i, cfg.press_from) + cfg.press_hover * up
+            return self._pad_to_tcp(i, target), None, cfg.approach_speed, opened, None
+        if name == "press_descend":
+            target = self._press_target(i, cfg.press_from)
+            return self._pad_to_tcp(i, target), None, cfg.descend_speed, opened, None
+        if name == "press":
+            press_to = arc[-1] - self.envs[i].task.plug_lead - cfg.press_stop
+            self.press_arc[i] = min(self.press_arc[i] + cfg.press_speed, press_to)
+            target = self._press_target(i, self.press_arc[i])
+            done = bool(self.press_arc[i] >= press_to)
+            return self._pad_to_tcp(i, target), None, 3 * cfg.press_speed, opened, done
+        return hold + (cfg.retreat + cfg.final_retreat) * up, None, cfg.descend_speed, opened, None
+
+    # -- the pressing pass ---------------------------------------------------------------------
+    def _pad_bottom(self, i):
+        """World centre of the pressing pad's bottom face and the pad's (2,) half extents
+        along its own x and y axes (world xy) with those axes (2, 2)."""
+        env = self.envs[i]
+        model, data = env.model, env.data
+        gid = model.geom(env.robot.pad_geom_names[0]).id
+        rot = data.geom_xmat[gid].reshape(3, 3)
+        size = model.geom_size[gid]
+        bottom = data.geom_xpos[gid] - size[2] * UP
+        return bottom, size[:2], rot[:2, :2].T
+
+    def _pad_to_tcp(self, i, pad_target_world):
+        """Base-frame TCP goal that brings the pressing pad's bottom centre to a world point."""
+        env = self.envs[i]
+        tcp_world = env.data.site_xpos[env.task.tcp_site]
+        bottom, _, _ = self._pad_bottom(i)
+        return self._to_base(i, pad_target_world + (tcp_world - bottom))
+
+    def _press_target(self, i, s: float):
+        """World point for the pad's bottom centre at arc ``s``: on the path, at the seated
+        wire's top where the pad fits between the walls, else just above the wall tops."""
+        world, arc = self._path(i)
+        heights = self._press_heights(i)
+        s = float(np.clip(s, 0.0, arc[-1]))
+        point = np.array([np.interp(s, arc, world[:, k]) for k in range(3)])
+        return point + np.interp(s, arc, heights) * UP
+
+    def _press_heights(self, i):
+        """(M,) pad-bottom heights above the floor along the path (cached per episode)."""
+        if self._press_profile[i] is not None:
+            return self._press_profile[i]
+        cfg, task = self.config, self.envs[i].task
+        channel = task.placed.config
+        world, arc = self._path(i)
+        _, half, axes = self._pad_bottom(i)
+        corners = np.array([[sx * half[0], sy * half[1]] for sx in (-1, 1) for sy in (-1, 1)])
+        offsets = corners @ axes  # rows: corner offsets in world xy
+        fits = np.array(
+            [self._between_walls(i, point[:2] + offsets, cfg.press_margin).all() for point in world]
+        )
+        # Stay high wherever the pad would not fit within press_window of arc.
+        blocked = ~fits
+        near = np.zeros_like(blocked)
+        for k in np.flatnonzero(blocked):
+            near |= np.abs(arc - arc[k]) <= cfg.press_window
+        radius = task.assembly.wire.config.radius
+        deep = 2 * radius - cfg.press_squeeze
+        high = channel.wall_height + cfg.press_clearance
+        self._press_profile[i] = np.where(near, high, deep)
+        return self._press_profile[i]
+
+    def _between_walls(self, i, xy, margin: float) -> np.ndarray:
+        """(K,) whether world xy points lie over the channel floor, ``margin`` inside the
+        walls."""
+        placed = self.envs[i].task.placed
+        local = placed.to_local(np.column_stack([xy, np.zeros(len(xy))]))
+        cfg = placed.config
+        inside = np.zeros(len(local), bool)
+        for start, heading in cfg.segment_frames():
+            d = local[:, :2] - start
+            u = d[:, 0] * math.cos(heading) + d[:, 1] * math.sin(heading)
+            v = -d[:, 0] * math.sin(heading) + d[:, 1] * math.cos(heading)
+            inside |= (
+                (u >= -margin)
+                & (u <= cfg.segment_length + margin)
+                & (np.abs(v) <= cfg.inner_width / 2 - margin)
+            )
+        return inside
+
+    def _needs_pressing(self, i) -> bool:
+        """Whether any inner point of the wire rides higher than ``press_needed`` above a wire
+        resting on the channel floor (the expert's own check; the success flag is not read)."""
+        env = self.envs[i]
+        placed = env.task.placed
+        points = placed.to_local(env.wire_points())[1:-1]
+        rest = placed.config.floor + env.task.assembly.wire.config.radius
+        return bool(np.any(points[:, 2] > rest + self.config.press_needed))
 
     def _take_grasp_goal(self, i) -> None:
         """Grasp at the middle of the plug's tail (its ``grasp_site``), TCP ``grasp_height``
@@ -248,5 +376,9 @@ class SeatingExpert(ScriptedExpert):
                     fsm.goto("approach", np.eye(self.num_envs, dtype=bool)[i])
             elif left == idx("carry"):
                 self.lay_arc[i] = 0.0
+            elif left == idx("press_descend"):
+                self.press_arc[i] = cfg.press_from
             elif left == idx("place"):
                 fsm.snapshots["hold_pos"][i] = self._tcp(i)[0]
+            elif left == idx("retreat") and not self._needs_pressing(i):
+                fsm.goto("done", np.eye(self.num_envs, dtype=bool)[i])
