@@ -181,6 +181,10 @@ def test_an_rl_run_directory_goes_to_wirecraft_rl(tmp_path, monkeypatch):
             calls.append((path, env))
             return "loaded"
 
+        @staticmethod
+        def policy_env_kwargs(path):
+            return json.loads((path / "wirecraft_rl.json").read_text())["env_kwargs"]
+
     import sys
 
     monkeypatch.setitem(sys.modules, "wirecraft.rl", FakeRL)

@@ -230,6 +230,13 @@ def test_ppo_trains_saves_loads_and_resumes(tmp_path):
     )
     assert policy.act(obs[0]).shape == (1, 7)
 
+    # the run directory is a policy for the evaluation protocol (wirecraft eval --policy RUN_DIR)
+    from wirecraft.evaluation import evaluate
+
+    result = evaluate("insertion", str(run_dir), seeds=1, episodes=2, episode_seconds=0.1)
+    assert len(result["episodes"]) == 2
+    assert set(result["metrics"]) >= {"success", "reach_success", "insert_success"}
+
     # resume: iterations 2 and 3 follow the saved ones, normalizer statistics carry over
     train("ppo", "insertion", None, run_dir, steps=96, resume=True, progress=False)
     run = json.loads((run_dir / RUN_FILE).read_text())

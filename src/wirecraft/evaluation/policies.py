@@ -31,7 +31,6 @@ from wirecraft.experts.fsm import unwrap_envs
 BUILTIN_POLICIES = ("scripted", "random", "zero")
 RL_MARKER = "wirecraft_rl.json"
 # What an RL policy fixes about its environments (its observation and action spaces).
-RL_ENV_KEYS = ("robot", "control", "obs_mode", "image_size")
 # LeRobot camera feature -> our observation key (the dataset schema's camera names).
 LEROBOT_CAMERAS = {"cam_side": "rgb_side", "cam_wrist": "rgb_wrist"}
 
@@ -291,21 +290,16 @@ def policy_env_kwargs(spec, task: str) -> dict[str, Any]:
 
 
 def _rl_env_kwargs(folder: Path) -> dict[str, Any]:
-    """What an RL run recorded about its environments: ``env_kwargs`` (or top-level
-    ``control`` / ``obs_mode`` / ``image_size``) in ``wirecraft_rl.json``."""
+    """What an RL run recorded about its environments (control, observation mode, image
+    size), read by the RL package that wrote it."""
     try:
-        from wirecraft import rl
-
-        if hasattr(rl, "policy_env_kwargs"):
-            return dict(rl.policy_env_kwargs(folder))
-    except ImportError:
-        pass
-    meta = json.loads((folder / RL_MARKER).read_text())
-    kwargs = dict(meta.get("env_kwargs") or {})
-    for key in RL_ENV_KEYS:
-        if key in meta and key not in kwargs:
-            kwargs[key] = meta[key]
-    return {k: v for k, v in kwargs.items() if k in RL_ENV_KEYS}
+        from wirecraft.rl import policy_env_kwargs as rl_env_kwargs
+    except ImportError as err:
+        raise RuntimeError(
+            f"{folder} is an RL run, but wirecraft.rl cannot be imported ({err}); "
+            "install the rl extra: pip install 'wirecraft[rl]'"
+        ) from err
+    return dict(rl_env_kwargs(folder))
 
 
 def load_policy(spec, env, **kw) -> Policy:
