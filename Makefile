@@ -62,6 +62,7 @@ test: install sysdeps browser
 bench: install
 	$(VENV)/bin/wirecraft bench --suite wires
 	$(VENV)/bin/wirecraft bench --suite robots
+	$(VENV)/bin/wirecraft bench --suite envs --task insertion --wire articulated --num-envs 1,16,256 --threads 1,2 --json out/bench/envs.json
 
 lint: install
 	$(VENV)/bin/ruff check src tests benchmarks
