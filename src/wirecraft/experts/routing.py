@@ -9,26 +9,36 @@ success flags or ``task.routed``):
   ``assembly.clamp`` (the clamp body, the first anchor), ``assembly.wire.config`` (radius,
   length), ``assembly.wire_contacts`` with ``pad_contacts(model, data, ...)`` (both pads on the
   wire);
-- ``env.robot``: ``tcp_pose_base(model, data)``, ``gripper_velocity``, ``max_opening``;
+- ``env.robot``: ``tcp_pose_base(model, data)``, ``gripper_velocity``, ``max_opening``,
+  ``pad_geom_names`` (the pads' geoms: where their ends are);
+- ``env.wrist_wrench()``: the wrist force/torque sensor (the push and the press stop on it);
 - ``env.controller``: its own target pose and base frame, through
   ``wirecraft.control.servo_action``.
 
 Phases (``PHASES``), once per clip: approach -> descend -> close -> lift -> rotate -> raise
--> stretch -> pull_back -> push -> release -> retreat, then back to ``approach`` for the next
-clip (re-grasp; the first clip the expert's own slot check finds empty, while retries last)
-or ``done``.  Every goal is a TCP pose in the robot base frame.
+-> stretch -> pull_back -> push -> release -> retreat [-> press_over -> press -> press_up],
+then back to ``approach`` for the next clip (re-grasp; the first clip the expert's own slot
+check finds empty, while retries last) or ``done``.  Every goal is a TCP pose in the robot
+base frame.
 
 - Grasp: the first wire point (every 5 mm along the centre line, clear of the clips and the
   plug) with enough free wire beyond the anchor (the clamp for the first clip, the previous
   clip afterwards) to be just taut at the clip front; TCP pointing down, pads closing across
-  the local wire tangent (the nearer of the two equivalent yaws); the TCP descends to a fixed
-  height above the table.
+  the local wire tangent (of the two equivalent yaws, the one that makes the whole turn, to
+  the grasp and on to the slot axis, shortest); the TCP descends to a fixed height above the
+  table, or to the wire's own height where it lies raised.  How deep the wire then sits
+  between the pads is measured and used for the carry and the push.
 - At grasp time the anchor and the anchor-to-clip direction (horizontal) are frozen.
 - Lift a little and swing the wire low to beside the clip while turning the pads across the
   slot axis (a stiff wire lifted and swung near a seated clip pries it out), raise to the carry
   height, over-stretch along the frozen direction until the free wire is straight, pull back
-  to the clip front (``front`` past the slot centre along the slot axis, far side), push down
-  to ``push_height``, release, retreat.
+  to the clip front on the slot axis, far side, correcting sideways until the wire crosses
+  the clip's mid-plane over the slot centre, with the pads where they hold the link of the
+  wire that spans the slot (``_link_front``); push down until the wire is seated, the pose
+  is reached or the wrist feels ``push_force``; release, retreat.
+- Press: when the wire lies over the slot's mouth but not in it (on the lips), one open pad is
+  brought over the slot and lowered onto the wire, slowly near it, down to just above the
+  clip's top or until the wrist feels ``press_force``.
 """
 
 from __future__ import annotations
@@ -56,6 +66,9 @@ class RoutingExpertConfig:
     over_pull: float = 0.004  # m the over-stretch goes past the point where the wire is taut
     wire_below_tcp: float = 0.005  # m: the held wire's centre below the TCP
     front: float = 0.022  # m past the slot centre along the slot axis (pads clear the clip)
+    min_front: float = 0.018  # m: the nearest the pads' centre may come (1.5 mm off the clip)
+    max_front: float = 0.030  # m
+    link_joint: float = 0.018  # m past the slot centre for the joint that ends the slot's link
     push_height: float = 0.008  # m: TCP above the table at the end of the push
     grasp_slack: float = 0.003  # m of wire beyond the taut anchor-to-front length at a grasp
     grasp_spacing: float = 0.005  # m between candidate grasp points along the centre line
@@ -66,6 +79,17 @@ class RoutingExpertConfig:
     carry_speed: float = 0.008  # m per step
     push_speed: float = 0.002  # m per step
     retreat: float = 0.03  # m straight up after releasing
+    press_clearance: float = 0.012  # m: fingertips above the wire's top while moving to the press
+    press_above: float = 0.0005  # m above the clip's top where the pad's end stops
+    press_reach: float = 0.01  # m: a wire resting higher above the lips is not pressed
+    press_speed: float = 0.002  # m per step down onto the wire
+    press_force: float = 40.0  # N: the press stops once the wrist feels this much more
+    push_force: float = 60.0  # N: the push stops once the wrist feels this much more
+    force_steps: int = 2  # steps in a row over a force limit that stop a push or press
+    press_slow_gap: float = 0.012  # m above the wire's top where the press slows down
+    crossing_reach: float = 0.05  # m: a wire crossing the clip's mid-plane farther is ignored
+    lateral_gain: float = 0.3  # of the wire's offset at the slot, corrected per step
+    max_lateral: float = 0.012  # m: largest lateral correction of the pull-back point
     seated_margin: float = 0.001  # m below the lips a wire must lie to count as seated
     max_grasp_retries: int = 2  # per clip: re-grasps after a grasp that did not hold
     max_seat_retries: int = 2  # per episode: clips routed again after a failed push
@@ -74,15 +98,18 @@ class RoutingExpertConfig:
 PHASES = (
     Phase("approach", pos_tol=0.006, rot_tol=0.12, dwell=1, timeout=200),
     Phase("descend", pos_tol=0.002, rot_tol=0.05, dwell=2, timeout=60),
-    Phase("close", pos_tol=np.inf, rot_tol=np.inf, dwell=3, timeout=40),
+    Phase("close", pos_tol=np.inf, rot_tol=np.inf, dwell=3, timeout=22),
     Phase("lift", pos_tol=0.004, rot_tol=np.inf, dwell=1, timeout=40),
-    Phase("rotate", pos_tol=0.006, rot_tol=0.05, dwell=1, timeout=150),
-    Phase("raise", pos_tol=0.005, rot_tol=0.05, dwell=1, timeout=30),
-    Phase("stretch", pos_tol=0.004, rot_tol=0.05, dwell=2, timeout=60),
+    Phase("rotate", pos_tol=0.006, rot_tol=0.3, dwell=1, timeout=150),
+    Phase("raise", pos_tol=0.005, rot_tol=0.2, dwell=1, timeout=30),
+    Phase("stretch", pos_tol=0.004, rot_tol=0.1, dwell=2, timeout=60),
     Phase("pull_back", pos_tol=0.003, rot_tol=0.05, dwell=2, timeout=40),
     Phase("push", pos_tol=0.002, rot_tol=0.06, dwell=3, timeout=40),
     Phase("release", pos_tol=np.inf, rot_tol=np.inf, dwell=2, timeout=20),
-    Phase("retreat", pos_tol=0.008, rot_tol=0.1, dwell=1, timeout=30),
+    Phase("retreat", pos_tol=0.006, rot_tol=0.1, dwell=1, timeout=30),
+    Phase("press_over", pos_tol=0.0015, rot_tol=0.05, dwell=2, timeout=30),
+    Phase("press", pos_tol=0.002, rot_tol=0.06, dwell=3, timeout=25),
+    Phase("press_up", pos_tol=0.006, rot_tol=0.1, dwell=1, timeout=20),
     Phase("done"),
 )
 
@@ -119,6 +146,12 @@ class RoutingExpert(ScriptedExpert):
         self.seat_retries = np.zeros(self.num_envs, int)
         self.grasp_arc = np.zeros(self.num_envs)  # m along the wire of the current grasp
         self.free_wire = np.zeros(self.num_envs)  # m of wire between anchor and grasp
+        self.held_below = np.full(self.num_envs, 0.005)  # m: held wire's centre below the TCP
+        self.front = np.full(self.num_envs, self.config.front)  # m: pads past the slot centre
+        self.lateral = np.zeros(self.num_envs)  # m: correction of the pull-back point
+        self.wrench_before = np.zeros((self.num_envs, 3))  # N: wrist force as a push began
+        self.force_steps = np.zeros(self.num_envs, int)  # steps in a row over the force limit
+        self.force_stopped = np.zeros(self.num_envs, bool)
 
     def _reset_state(self, mask) -> None:
         self.clip[mask] = 0
@@ -139,21 +172,36 @@ class RoutingExpert(ScriptedExpert):
         table = self._table_height(i, 0.0)
         return point + (height - np.dot(point - table, up)) * up
 
-    def _down_rot(self, i, axis, near=None):
-        """TCP rotation pointing down, pads closing across the horizontal ``axis``; of the two
-        equivalent yaws, the one nearer ``near`` (default: the controller's current target)."""
+    def _down_rots(self, i, axis):
+        """The two TCP rotations pointing down with the pads closing across the horizontal
+        ``axis`` (yaws 180 deg apart: the gripper is symmetric)."""
         up = self._up(i)
         axis = _horizontal(axis, up)
         z = -up
-        if near is None:
-            _, near = self._ctl_target(i)
-        best = None
+        rots = []
         for sign in (1.0, -1.0):
             y = sign * np.cross(up, axis)
-            rot = np.column_stack([np.cross(y, z), y, z])
-            if best is None or rotation_angle(rot, near) < rotation_angle(best, near):
-                best = rot
-        return best
+            rots.append(np.column_stack([np.cross(y, z), y, z]))
+        return rots
+
+    def _down_rot(self, i, axis, near=None):
+        """Of ``_down_rots(i, axis)``, the one nearer ``near`` (default: the controller's
+        current target)."""
+        if near is None:
+            _, near = self._ctl_target(i)
+        return min(self._down_rots(i, axis), key=lambda rot: rotation_angle(rot, near))
+
+    def _grasp_rot(self, i, tangent, slot_axis):
+        """Grasp rotation across the wire's ``tangent``: of the two, the one that makes the
+        turn from the controller's target to it and then on to the nearer slot rotation the
+        shortest (the turn, at 0.01 rad per step, is the slowest part of a clip)."""
+        _, now = self._ctl_target(i)
+        slots = self._down_rots(i, slot_axis)
+
+        def turn(rot):
+            return rotation_angle(rot, now) + min(rotation_angle(rot, s) for s in slots)
+
+        return min(self._down_rots(i, tangent), key=turn)
 
     # -- the route ---------------------------------------------------------------------------
     def _clip_geometry(self, i, index=None):
@@ -238,19 +286,35 @@ class RoutingExpert(ScriptedExpert):
         else:
             k = candidates[np.argmin(np.linalg.norm(points[candidates] - slot, axis=1))]
         tangent = points[min(k + 1, len(points) - 1)] - points[max(k - 1, 0)]
-        grasp = self._at_height(i, points[k], cfg.grasp_height)
+        # A wire lying raised (over a clip, or arched) is grasped at its own height, so that it
+        # sits low between the pads: the push can then take it down to the slot.
+        lying = float(np.dot(points[k] - self._table_height(i, 0.0), up))
+        grasp = self._at_height(i, points[k], max(cfg.grasp_height, lying + cfg.wire_below_tcp))
         self.fsm.snapshots["grasp_pos"][i] = grasp
-        self.fsm.snapshots["grasp_rot"][i] = self._down_rot(i, tangent)
+        _, slot_axis, _ = self._clip_geometry(i)
+        self.fsm.snapshots["grasp_rot"][i] = self._grasp_rot(i, tangent, slot_axis)
         self.fsm.snapshots["anchor"][i] = anchor
         self.fsm.snapshots["direction"][i] = _horizontal(slot - anchor, up)
         self.grasp_arc[i] = arc[k]
         self.free_wire[i] = arc[k] - anchor_arc
 
+    def _held_depth(self, i, tcp_pos):
+        """m the wire's centre line lies below the TCP where it passes between the pads
+        (``wire_below_tcp`` when it passes nowhere within 1 cm)."""
+        up = self._up(i)
+        nodes = self._to_base(i, self.envs[i].wire_points())
+        line = resample(nodes, 0.002)
+        flat = np.linalg.norm(_flat(line - tcp_pos, up), axis=1)
+        k = int(np.argmin(flat))
+        if flat[k] > 0.01:
+            return self.config.wire_below_tcp
+        return float(np.dot(tcp_pos - line[k], up))
+
     def _rise(self, i, anchor):
         """m the held wire's centre stands above ``anchor`` at the carry height."""
         cfg = self.config
         height = np.dot(anchor - self._table_height(i, 0.0), self._up(i))
-        return cfg.carry_height - cfg.wire_below_tcp - height
+        return cfg.carry_height - self.held_below[i] - height
 
     def _taut_length(self, i, slot, anchor):
         """m of wire from the anchor to the clip front at the carry height, pulled straight."""
@@ -284,6 +348,127 @@ class RoutingExpert(ScriptedExpert):
         if size < 1e-6:
             return stretch
         return stretch + offset * min(1.0, cfg.side_gap / size)
+
+    # -- the press ---------------------------------------------------------------------------
+    def _pad_tip_offsets(self, i):
+        """(2, 3) base-frame offsets from the TCP to the centre of each pad's end face."""
+        env = self.envs[i]
+        tcp_pos, tcp_rot = env.robot.tcp_pose_base(env.model, env.data)
+        offsets = []
+        for name in env.robot.pad_geom_names:
+            geom = env.model.geom(name)
+            centre = self._to_base(i, env.data.geom_xpos[geom.id])
+            offsets.append(centre + geom.size[2] * tcp_rot[:, 2] - tcp_pos)
+        return np.array(offsets)
+
+    def _press_point(self, i):
+        """TCP goal of the press: the end of the open pad nearer the goal centred over the
+        wire where it crosses the slot (kept inside the slot), ``press_above`` the clip's top:
+        the 6 mm pad does not pass the lips (a 6 mm gap) and, pushed between the soft lips, it
+        wedges under them; a wire whose top is down there is past the lips, which then push
+        it on into the slot."""
+        cfg, env = self.config, self.envs[i]
+        slot, axis, clip = self._clip_geometry(i)
+        lateral = np.cross(self._up(i), axis)
+        pad = env.model.geom(env.robot.pad_geom_names[0])
+        room = max(clip.slot_width / 2 - pad.size[1], 0.0)
+        crossing = self._wire_across_slot(i)
+        offset = 0.0 if crossing is None else float(np.clip(crossing[0], -room, room))
+        target = slot + offset * lateral
+        offsets = self._pad_tip_offsets(i)
+        tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
+        goal = min((target - off for off in offsets), key=lambda g: np.linalg.norm(g - tcp_pos))
+        pad_end = -np.dot(offsets[0], self._up(i))  # m the pad ends lie below the TCP
+        height = clip.base_height + clip.slot_depth + cfg.press_above + pad_end
+        return self._at_height(i, goal, height)
+
+    def _worth_pressing(self, i) -> bool:
+        """After a push: the wire is not seated yet but lies over the slot's mouth (a press
+        there would miss a wire that sprang off onto an upright or beside the clip, and the
+        pad would go down into the empty slot)."""
+        if self.seated(i)[self.clip[i]]:
+            return False
+        crossing = self._wire_across_slot(i)
+        if crossing is None:
+            return False
+        clip = self.envs[i].task.placed_clips(self.envs[i].data)[self.clip[i]].config
+        radius = self.envs[i].task.assembly.wire.config.radius
+        above_lips = crossing[1] - (clip.slot_depth + radius)
+        return abs(crossing[0]) <= clip.slot_width / 2 and above_lips < self.config.press_reach
+
+    def _wire_across_slot(self, i, index=None):
+        """(lateral offset (m, along the clip's y), height above the slot floor (m)) of the
+        wire's centre line where it crosses the clip's mid-plane, the crossing nearest the
+        slot; None when it crosses nowhere within ``crossing_reach`` of the slot."""
+        env, cfg = self.envs[i], self.config
+        clip = env.task.placed_clips(env.data)[self.clip[i] if index is None else index]
+        local = clip.to_local(env.wire_points())
+        x = local[:, 0]
+        k = np.flatnonzero(np.signbit(x[:-1]) != np.signbit(x[1:]))
+        if len(k) == 0:
+            return None
+        t = (x[k] / (x[k] - x[k + 1]))[:, None]
+        points = local[k] + t * (local[k + 1] - local[k])
+        height = points[:, 2] - clip.config.base_height
+        best = int(np.argmin(np.hypot(points[:, 1], height)))
+        if np.hypot(points[best, 1], height[best]) > cfg.crossing_reach:
+            return None
+        return float(points[best, 1]), float(height[best])
+
+    def _link_front(self, i, sign) -> float:
+        """Pads' distance past the slot centre for the push.
+
+        A wire made of rigid links (the articulated wire's 33 mm capsules) is pushed into the
+        slot by the link that spans it; the pads must hold that link, not the next one, whose
+        joint would sit on the lips and pivot there.  So the pads go where the first joint past
+        the slot centre lies ``link_joint`` past it, within [``min_front``, ``max_front``].  A
+        wire with nodes closer than the clip is long (rod, FEM) bends anywhere: ``front``."""
+        cfg, env = self.config, self.envs[i]
+        clip = env.task.placed_clips(env.data)[self.clip[i]]
+        nodes = env.wire_points()
+        if np.median(np.linalg.norm(np.diff(nodes, axis=0), axis=1)) < clip.config.length:
+            return cfg.front
+        local = clip.to_local(nodes)
+        along = sign * local[:, 0]
+        tcp = clip.to_local(env.data.site_xpos[env.task.tcp_site][None])[0]
+        tcp_along = sign * tcp[0]
+        # joints between the slot centre and the pads, beside the slot
+        beyond = (along > 0) & (along < tcp_along + 0.02) & (np.abs(local[:, 1]) < 0.02)
+        if not beyond.any():
+            return cfg.front
+        joint = along[beyond].min()
+        return float(np.clip(tcp_along + cfg.link_joint - joint, cfg.min_front, cfg.max_front))
+
+    def _force_stop(self, i, limit) -> bool:
+        """Whether the push or press of environment ``i`` has met resistance: the wrist force
+        differs from the one before it by more than ``limit`` for ``force_steps`` steps in a
+        row (latched until the phase ends)."""
+        rise = np.linalg.norm(self.envs[i].wrist_wrench()[:3] - self.wrench_before[i])
+        self.force_steps[i] = self.force_steps[i] + 1 if rise > limit else 0
+        if self.force_steps[i] >= self.config.force_steps:
+            self.force_stopped[i] = True
+        return bool(self.force_stopped[i])
+
+    def _press_gap(self, i):
+        """m between the pad ends and the top of the wire where it crosses the slot (or of a
+        wire on the slot floor when none crosses)."""
+        env = self.envs[i]
+        _, _, clip = self._clip_geometry(i)
+        radius = env.task.assembly.wire.config.radius
+        crossing = self._wire_across_slot(i)
+        wire_top = clip.base_height + (2 * radius if crossing is None else crossing[1] + radius)
+        tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
+        pad_end = -np.dot(self._pad_tip_offsets(i)[0], self._up(i))
+        height = np.dot(tcp_pos - self._table_height(i, 0.0), self._up(i)) - pad_end
+        return height - wire_top
+
+    def _press_clear_height(self, i):
+        """TCP height at which the open pads pass over the clip and a wire lying on its lips."""
+        cfg = self.config
+        _, _, clip = self._clip_geometry(i)
+        radius = self.envs[i].task.assembly.wire.config.radius
+        pad_end = -np.dot(self._pad_tip_offsets(i)[0], self._up(i))
+        return clip.base_height + clip.slot_depth + 2 * radius + cfg.press_clearance + pad_end
 
     # -- control -------------------------------------------------------------------------------
     def _held(self, i) -> bool:
@@ -344,7 +529,18 @@ class RoutingExpert(ScriptedExpert):
         slot, axis, _ = self._clip_geometry(i)
         direction = fsm.get("direction")[i]
         sign = 1.0 if np.dot(axis, direction) >= 0 else -1.0
-        front = slot + cfg.front * sign * axis
+        lateral = np.cross(up, axis)
+        if name in ("pull_back", "push"):
+            crossing = self._wire_across_slot(i)
+            if crossing is not None:
+                self.lateral[i] = np.clip(
+                    self.lateral[i] - cfg.lateral_gain * crossing[0],
+                    -cfg.max_lateral,
+                    cfg.max_lateral,
+                )
+        if name == "pull_back":
+            self.front[i] = self._link_front(i, sign)
+        front = slot + self.front[i] * sign * axis + self.lateral[i] * lateral
         # ---- Pull back: to the clip front (on the slot axis, beyond the clip) ---------------
         if name == "pull_back":
             goal = self._at_height(i, front, cfg.carry_height)
@@ -352,8 +548,16 @@ class RoutingExpert(ScriptedExpert):
 
         # ---- Push: down, dragging the wire past the lips -------------------------------------
         if name == "push":
-            goal = self._at_height(i, front, cfg.push_height)
-            return goal, slot_rot, cfg.push_speed, 1.0, None
+            if self._force_stop(i, cfg.push_force):
+                return self.views[i].tcp_pos, slot_rot, fast, 1.0, True
+            seated = bool(self.seated(i)[self.clip[i]])
+            # the held wire's centre to push_height - wire_below_tcp (however deep it sits in
+            # the pads), the pads' ends no lower than at push_height
+            low = cfg.push_height - cfg.wire_below_tcp + self.held_below[i]
+            goal = self._at_height(i, front, max(cfg.push_height, low))
+            # done once the expert's own check finds the wire in the slot (the phase's dwell
+            # keeps pushing a few steps more), else when the pose is reached
+            return goal, slot_rot, cfg.push_speed, 1.0, (True if seated else None)
 
         hold = fsm.get("hold_pos")[i]
         # ---- Release: open where the push ended ----------------------------------------------
@@ -363,8 +567,22 @@ class RoutingExpert(ScriptedExpert):
             )
             return hold, slot_rot, fast, open_cmd, bool(opened)
 
-        # ---- Retreat: straight up -------------------------------------------------------------
-        return hold + cfg.retreat * up, slot_rot, cfg.carry_speed, open_cmd, None
+        # ---- Retreat: straight up, the pads clear of the wire ---------------------------------
+        clear = self._press_clear_height(i)
+        if name == "retreat":
+            return self._at_height(i, hold, clear), slot_rot, fast, open_cmd, None
+
+        # ---- Press: one open pad over the slot, down onto the wire, up again ------------------
+        press = self._press_point(i)
+        if name == "press_over":
+            return self._at_height(i, press, clear), slot_rot, fast, open_cmd, None
+        if name == "press":
+            if self._force_stop(i, cfg.press_force):
+                return self.views[i].tcp_pos, slot_rot, fast, open_cmd, True
+            far = self._press_gap(i) > cfg.press_slow_gap
+            speed = cfg.descend_speed if far else cfg.press_speed
+            return press, slot_rot, speed, open_cmd, None
+        return self._at_height(i, press, clear), slot_rot, fast, open_cmd, None
 
     def _next_clip(self, i) -> int | None:
         """After a clip's retreat: the first clip the wire is not seated in, while retries
@@ -393,6 +611,7 @@ class RoutingExpert(ScriptedExpert):
             one[i] = True
             if left == idx("close"):
                 tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
+                self.held_below[i] = self._held_depth(i, tcp_pos)
                 fsm.snapshots["lift_from"][i] = tcp_pos
                 _, axis, _ = self._clip_geometry(i)
                 fsm.snapshots["slot_rot"][i] = self._down_rot(i, axis, near=fsm.get("grasp_rot")[i])
@@ -401,16 +620,32 @@ class RoutingExpert(ScriptedExpert):
                     self.grasp_retries[i] += 1
                     fsm.snapshots["grasp_pos"][i] = np.nan
                     fsm.goto("approach", one)
+            elif left == idx("stretch"):
+                self.lateral[i] = 0.0
+            elif left in (idx("press_over"), idx("pull_back")):
+                self.wrench_before[i] = env.wrist_wrench()[:3]
+                self.force_steps[i] = 0
+                self.force_stopped[i] = False
+            elif left == idx("retreat") and not self._worth_pressing(i):
+                self._finish_clip(i)
             elif left == idx("push"):
                 tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
                 fsm.snapshots["hold_pos"][i] = tcp_pos
-            elif left == idx("retreat"):
-                nxt = self._next_clip(i)
-                if nxt is not None:
-                    self.clip[i] = nxt
-                    self.grasp_retries[i] = 0
-                    fsm.snapshots["grasp_pos"][i] = np.nan
-                    fsm.goto("approach", one)
+            elif left == idx("press_up"):
+                self._finish_clip(i)
+
+    def _finish_clip(self, i) -> None:
+        """On to the next clip (or ``done``) after a clip's push, or its press."""
+        one = np.zeros(self.num_envs, bool)
+        one[i] = True
+        nxt = self._next_clip(i)
+        if nxt is None:
+            self.fsm.goto("done", one)
+            return
+        self.clip[i] = nxt
+        self.grasp_retries[i] = 0
+        self.fsm.snapshots["grasp_pos"][i] = np.nan
+        self.fsm.goto("approach", one)
 
 
 def _flat(v: np.ndarray, up: np.ndarray) -> np.ndarray:
