@@ -9,7 +9,10 @@ Episode k resets the environment with seed ``seed_start + k`` and the expert wit
 inserted at some step, inserted at the end of the episode, and, with release, still seated at
 the end among the episodes whose plug was seated when the pads opened; the episode length (the
 step the expert reached ``done``, or "-" if it never did: p50 / p90 / max, and how many not
-done by the end); and how often pick-and-drop, insertion retries and grasp retries happened.
+done by the end); how often pick-and-drop, insertion retries and grasp retries happened; and the
+largest insertion force (``info["insertion_force"]``, N) of each episode, over all steps
+(``force_p50`` / ``force_max`` across episodes) and over the steps the pads touch the plug
+(``force_push_*``: what the robot pushes with).
 ``--set`` overrides an ``InsertionExpertConfig`` field (numbers, true/false, or lo,hi).
 """
 
@@ -55,6 +58,7 @@ def run_episode(env, expert, seed: int) -> dict:
     env.reset(seed=seed)
     expert.reset(seed=seed)
     reach = inserted = False
+    max_force = max_push = 0.0
     done_step = release_step = first_seated = None
     seated_at_release = False
     truncated = terminated = False
@@ -73,6 +77,9 @@ def run_episode(env, expert, seed: int) -> dict:
         if info["insert_success"] and first_seated is None:
             first_seated = step
         inserted |= bool(info["insert_success"])
+        max_force = max(max_force, float(info["insertion_force"]))
+        if info["grasp_force"] > 1.0:  # the pads on the plug: the robot's own push
+            max_push = max(max_push, float(info["insertion_force"]))
     return {
         "seed": seed,
         "reach": reach,
@@ -90,6 +97,8 @@ def run_episode(env, expert, seed: int) -> dict:
         "lateral_end": float(info["lateral_error"]),
         "yaw_end": float(info["yaw_error"]),
         "steps": step,
+        "max_insertion_force": max_force,
+        "max_push_force": max_push,
     }
 
 
@@ -112,6 +121,10 @@ def summarize(rows: list[dict]) -> dict:
         "pick_and_drop": sum(r["pick_and_drop"] for r in rows) / n,
         "insert_retries": sum(r["insert_retries"] for r in rows) / n,
         "grasp_retries": sum(r["grasp_retries"] for r in rows) / n,
+        "force_p50": float(np.percentile([r["max_insertion_force"] for r in rows], 50)),
+        "force_max": max(r["max_insertion_force"] for r in rows),
+        "force_push_p50": float(np.percentile([r["max_push_force"] for r in rows], 50)),
+        "force_push_max": max(r["max_push_force"] for r in rows),
     }
     return out
 
@@ -124,6 +137,8 @@ def _fmt(key: str, value) -> str:
         return "-"
     if key in RATES:
         return f"{value:.0%}"
+    if key.startswith("force"):
+        return f"{value:.0f}N"
     return f"{value:.2f}" if key.endswith("retries") else f"{value:g}"
 
 

@@ -11,10 +11,12 @@ from wirecraft.evaluation import retention
 from wirecraft.tasks.insertion import INSERTION_AXIS
 
 
-def seated_plug(clearance: float, seed: int = 0):
+def seated_plug(clearance: float, seed: int = 0, connector: str = "ethernet"):
     """An insertion environment whose plug sits fully home in the socket, aligned, the cable
     laid straight out behind it along the socket axis (a constructed state)."""
-    env = wirecraft.make("insertion", clearance=clearance, episode_seconds=30.0)
+    env = wirecraft.make(
+        "insertion", connector=connector, clearance=clearance, episode_seconds=30.0
+    )
     env.reset(seed=seed)
     unwrapped = env.unwrapped
     task, model, data = unwrapped.task, unwrapped.model, unwrapped.data
@@ -46,10 +48,11 @@ def test_a_plug_released_in_a_tight_socket_is_retained_under_the_default_pull():
 
 
 def test_a_pull_beyond_what_holds_the_plug_pulls_it_out():
-    # At 1 mm clearance the cable's weight wedges the plug enough to hold 2 N, not 10 N.
-    _, env = seated_plug(0.001)
+    # A plain peg (no latch): at 1 mm clearance the cable's weight wedges it enough to hold
+    # 2 N, not 10 N.
+    _, env = seated_plug(0.001, connector="cylinder")
     assert retention.check_single(env, 2.0) == (True, None)
-    _, env = seated_plug(0.001)
+    _, env = seated_plug(0.001, connector="cylinder")
     retained, failure = retention.check_single(env, 10.0)
     assert not retained and failure == "pulled_out"
     err = env.task.seating_errors(env.data)
@@ -57,8 +60,14 @@ def test_a_pull_beyond_what_holds_the_plug_pulls_it_out():
 
 
 def test_at_3mm_clearance_the_hanging_cable_tips_a_released_plug_out_before_any_pull():
-    _, env = seated_plug(0.003)
+    _, env = seated_plug(0.003, connector="cylinder")  # a plain peg: nothing holds it
     assert retention.check_single(env, 0.0) == (False, "unseated_on_release")
+
+
+def test_a_latched_plug_is_retained_at_3mm_clearance_under_the_default_pull():
+    _, env = seated_plug(0.003)  # ethernet: its latch engages once seated (tasks/insertion.py)
+    assert retention.check_single(env, retention.DEFAULT_FORCE) == (True, None)
+    assert env.data.eq_active[env.task.retention_eqs].tolist() == [1]
 
 
 @pytest.mark.parametrize("control", ["joint", "cartesian"])

@@ -187,6 +187,12 @@ def test_config_validation():
         InsertionExpertConfig(grasp_back_range=(0.01, 0.0))
     with pytest.raises(ValueError, match="max_insert_retries"):
         InsertionExpertConfig(max_insert_retries=-1)
+    with pytest.raises(ValueError, match="max_insertion_force"):
+        InsertionExpertConfig(max_insertion_force=0.0)
+    with pytest.raises(ValueError, match="force_hold"):
+        InsertionExpertConfig(force_hold=1.5)
+    with pytest.raises(ValueError, match="force_backoff"):
+        InsertionExpertConfig(force_backoff=0.0)
 
 
 # -- other robots ------------------------------------------------------------------------------
@@ -198,3 +204,38 @@ def test_other_robots_seat_the_plug(robot):
         _, phases, info = _episode(env, expert, seed=seed)
         assert info["insert_success"], (robot, seed, phases)
     env.close()
+
+
+# -- gentle insertion -------------------------------------------------------------------------
+def test_the_push_is_held_then_backed_off_as_the_insertion_force_grows(ethernet):
+    import dataclasses
+
+    from wirecraft.assets.robots.kinematics import rotation_error
+
+    expert = InsertionExpert(ethernet, InsertionExpertConfig(diversity=False))
+    ethernet.reset(seed=0)
+    expert.reset(seed=0)
+    view = expert.read_state(0)
+    # A controller target leading the TCP by 4 mm and 0.1 rad, as when the plug is blocked.
+    lead_rot = np.array(
+        [[1.0, 0, 0], [0, np.cos(0.1), -np.sin(0.1)], [0, np.sin(0.1), np.cos(0.1)]]
+    )
+    view = dataclasses.replace(
+        view, target_pos=view.tcp_pos + [0.004, 0, 0], target_rot=lead_rot @ view.tcp_rot
+    )
+    goal_pos, goal_rot = view.tcp_pos + [0.01, 0, 0], view.tcp_rot
+    cfg = expert.config
+    limit, hold = cfg.max_insertion_force, cfg.force_hold * cfg.max_insertion_force
+    outcomes = {}
+    for force in (0.0, 0.5 * hold, 0.5 * (hold + limit), 2.0 * limit):
+        expert.views[0] = dataclasses.replace(view, insertion_force=force)
+        outcomes[force] = expert._gentle(0, goal_pos, goal_rot, 0.0015)
+    assert outcomes[0.0] == (goal_pos, goal_rot, 0.0015)  # no contact: unchanged
+    pos, rot, speed = outcomes[0.5 * hold]  # light contact: same goal, approached slower
+    assert pos is goal_pos and speed == pytest.approx(0.00075)
+    pos, rot, _ = outcomes[0.5 * (hold + limit)]  # near the limit: the target stops
+    assert np.allclose(pos, view.target_pos) and np.allclose(rot, view.target_rot)
+    pos, rot, _ = outcomes[2.0 * limit]  # over it: the lead shrinks, position and rotation
+    keep = 1.0 - cfg.force_backoff
+    assert np.allclose(pos - view.tcp_pos, [0.004 * keep, 0, 0])
+    assert np.linalg.norm(rotation_error(rot, view.tcp_rot)) == pytest.approx(0.1 * keep)

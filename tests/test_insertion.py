@@ -160,6 +160,31 @@ def test_reset_randomization_ranges_and_settling():
     assert_inside_and_covered(samples["roll"], -SPEC_ROLL_PITCH, SPEC_ROLL_PITCH, "roll")
 
 
+def test_widowx_ports_stay_within_its_reach_with_the_same_draws():
+    # WidowX AI: the mouth at most 0.13 m high and 0.46 m from its base (its measured reach
+    # with a plug held from above); UR5 and Panda keep the SPEC's ranges.
+    ports = {}
+    for robot in ("ur5", "wxai"):
+        unwrapped = make(robot=robot).unwrapped
+        task, model, data = unwrapped.task, unwrapped.model, unwrapped.data
+        (x_lo, x_hi), (z_lo, z_hi) = ins.PORT_RANGES.get(
+            robot, (ins.PORT_X_RANGE, ins.PORT_Z_RANGE)
+        )
+        assert task.port_ranges() == ((x_lo, x_hi), (z_lo, z_hi))
+        base = data.site_xpos[task.base_site].copy()
+        fractions = []
+        for seed in range(40):
+            task.initialize_episode(model, data, np.random.default_rng(seed))
+            port = task.sampled["port"]
+            assert x_lo <= port[0] <= x_hi and z_lo <= port[2] <= z_hi
+            if robot == "wxai":
+                assert port[2] <= 0.13 and np.linalg.norm((port - base)[:2]) < 0.46
+            fractions.append([(port[0] - x_lo) / (x_hi - x_lo), (port[2] - z_lo) / (z_hi - z_lo)])
+        ports[robot] = np.array(fractions)
+    # The same seed draws the same point of the range: a layout per seed, scaled per robot.
+    np.testing.assert_allclose(ports["wxai"], ports["ur5"], atol=1e-12)
+
+
 def expected_plug_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """Plug x along the insertion direction (yawed about +z from +y, pitched up), its y
     horizontal, then rolled about x: written out independently of the package."""

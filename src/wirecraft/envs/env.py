@@ -226,6 +226,7 @@ class WireCraftEnv(gym.Env):
             self.set_state(before)
             info = {**self._info_without_reward(), "diverged": True}
             return self._observe(), 0.0, False, True, info
+        self.task.after_step(model, data)
         clipped = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
         terms = self.task.reward_terms(model, data, clipped)
         weighted = {k: self.task.weights[k] * v for k, v in terms.items()}
@@ -328,8 +329,10 @@ class WireCraftEnv(gym.Env):
         """Everything the next steps depend on: physics, controller targets, task trackers."""
         physics = np.empty(mujoco.mj_stateSize(self.model, STATE_SPEC))
         mujoco.mj_getState(self.model, self.data, physics, STATE_SPEC)
+        # Arrays of numbers and scalars only: a copy is a deep copy (and far cheaper than
+        # copy.deepcopy, which this runs for every environment on every step).
         controller = {
-            k: copy.deepcopy(v)
+            k: v.copy() if isinstance(v, np.ndarray) else v
             for k, v in vars(self.controller).items()
             if isinstance(v, (np.ndarray, float, int, bool))
         }
@@ -343,7 +346,7 @@ class WireCraftEnv(gym.Env):
     def set_state(self, state: dict) -> None:
         mujoco.mj_setState(self.model, self.data, state["physics"], STATE_SPEC)
         for key, value in state["controller"].items():
-            setattr(self.controller, key, copy.deepcopy(value))
+            setattr(self.controller, key, value.copy() if isinstance(value, np.ndarray) else value)
         self.task.set_state(state["task"])
         self._steps = state["steps"]
         mujoco.mj_forward(self.model, self.data)

@@ -19,7 +19,18 @@ Phases (``PHASES``; see the banner comments in ``InsertionExpert._goals``): appr
   and the expert plans a new grasp and starts over from ``approach`` (once per episode);
 - an insertion that stalls (no axial progress for ``stall_steps``) or times out backs out
   along the socket axis (``back_out``), re-measures the grasp, re-solves the roll and drives
-  in again (``max_insert_retries`` times) before releasing.
+  in again (``max_insert_retries`` times) before releasing;
+- a plug whose latch (or friction hold) engaged when it seated is released where it is, at
+  once (``insert`` -> ``release``); only a plug that nothing holds (cylinder, cuboid, or a
+  latch that did not engage) is first tipped into the pose it will rest in (``tilt``).
+
+Gentle insertion: the plug is pushed by the lead of the Cartesian controller's target over the
+TCP (the arm's servo turns that lead into force).  While the plug touches the port (the
+insertion force, ``InsertionView.insertion_force``, is what a wrist force sensor or the
+``fixture_force`` observation measures) the expert stops advancing the target once the force
+nears ``force_hold`` x ``max_insertion_force`` (slowing down as the force builds), holds it
+up to ``max_insertion_force`` and backs it off toward the TCP above: the push stays within a
+few tens of newtons, like a hand's.
 
 Diversity (``InsertionExpertConfig.diversity``, on by default), drawn per episode from the
 expert's per-environment generator (``ScriptedExpert.rngs``; seed it with ``seed=`` or
@@ -38,7 +49,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from wirecraft.assets.robots.kinematics import axis_angle_to_mat
+from wirecraft.assets.robots.kinematics import axis_angle_to_mat, rotation_error
 from wirecraft.experts.base import RobotView, ScriptedExpert, robot_fields, rotation_angle
 from wirecraft.experts.fsm import Phase
 
@@ -55,6 +66,9 @@ class InsertionView(RobotView):
     direction, +z the top face).  plug_speed: m/s of the plug body.  grasp_point: middle of the
     tail; tip: front of the shell.  port_rot: socket frame (+x into the socket, +z its top);
     entry: socket mouth; seated: where the tip sits when home.  held: both pads touch the plug.
+    insertion_force: N between plug and port, contacts plus an engaged latch's load (the task's
+    insertion force).  latched: the connector's latch or friction hold is engaged (its
+    "click").
     depth / axial / lateral: the tip's depth past the mouth, distance still to go and distance
     off the socket axis (m).  symmetry: n-fold symmetry of the connector about its axis (0:
     continuous); tail_width: the tail's larger cross dimension; plug_length; cavity_depth (mouth
@@ -71,6 +85,8 @@ class InsertionView(RobotView):
     entry: np.ndarray
     seated: np.ndarray
     held: bool
+    insertion_force: float
+    latched: bool
     depth: float
     axial: float
     lateral: float
@@ -111,6 +127,8 @@ def read_insertion(env) -> InsertionView:
         entry=to_base(data.site_xpos[task.entry_site]),
         seated=to_base(data.site_xpos[task.seated_site]),
         held=bool(task.held(model, data)),
+        insertion_force=float(task.plug_port_force(model, data)),
+        latched=task.engaged_retention(data) is not None,
         depth=float(err["depth"]),
         axial=float(err["axial"]),
         lateral=float(err["lateral"]),
@@ -159,8 +177,14 @@ class InsertionExpertConfig:
     release: bool = True  # open the pads once seated (False: hold the plug in the socket)
     release_tilt: float = 1.0  # fraction of the socket's tilt limit to rest the plug at first
     release_rise: float = 0.8  # fraction of the clearance the tipped plug's tip rises
+    tilt_speed: float = 0.006  # rad per step the plug is tipped at
     open_steps: int = 12  # steps over which the pads open when releasing (slowly: no kick)
     withdraw: float = 0.0  # m the open pads back off along the socket axis before rising
+    # Gentle insertion (see the module docstring): N of plug-port contact force above which
+    # the target backs off, and the fraction of it above which the target stops advancing.
+    max_insertion_force: float = 25.0
+    force_hold: float = 0.6
+    force_backoff: float = 0.25
     retreat: float = 0.05  # m straight up after releasing
     retreat_speed: float = 0.004  # m per step
     # Diversity (drawn per episode from the expert's generator; off: the values above).
@@ -186,9 +210,16 @@ class InsertionExpertConfig:
             "insert_speed",
             "back_out_speed",
             "retreat_speed",
+            "max_insertion_force",
+            "tilt_speed",
         ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"InsertionExpertConfig.{name} must be > 0")
+        for name in ("force_hold", "force_backoff"):
+            if not 0.0 < getattr(self, name) <= 1.0:
+                raise ValueError(
+                    f"InsertionExpertConfig.{name} must be in (0, 1], got {getattr(self, name)}"
+                )
         if not 0.0 <= self.pick_and_drop_prob <= 1.0:
             raise ValueError(
                 f"InsertionExpertConfig.pick_and_drop_prob must be in [0, 1], "
@@ -213,12 +244,13 @@ PHASES = (
     Phase("pre_insert", pos_tol=0.0015, rot_tol=0.015, dwell=6, timeout=200),
     Phase("insert", pos_tol=np.inf, rot_tol=np.inf, dwell=4, timeout=90 + PAUSE_MAX, next="tilt"),
     Phase("back_out", pos_tol=0.003, rot_tol=0.05, dwell=1, timeout=40, next="pre_insert"),
-    Phase("tilt", pos_tol=np.inf, rot_tol=np.inf, dwell=3, timeout=60, next="release"),
+    Phase("tilt", pos_tol=np.inf, rot_tol=np.inf, dwell=3, timeout=100, next="release"),
     Phase("release", pos_tol=np.inf, rot_tol=np.inf, dwell=3, timeout=60),
     Phase("withdraw", pos_tol=0.003, rot_tol=0.1, dwell=1, timeout=40),
     Phase("retreat", pos_tol=0.01, rot_tol=0.1, dwell=1, timeout=60),
     Phase("done"),
 )
+TILT_STEPS = 80  # steps after which the tilt gives up on the rest pose and releases
 DROP_MIN_STEPS = 8  # steps with the pads open before the fallen plug may count as at rest
 DROP_REST_SPEED = 0.02  # m/s: the dropped plug is at rest
 
@@ -479,6 +511,7 @@ class InsertionExpert(ScriptedExpert):
                 cfg.stall_steps, self.insert_pause[i] + cfg.stall_steps
             )
             speed = cfg.insert_speed * self.insert_factor[i]
+            pos, rot, speed = self._gentle(i, pos, rot, speed)
             return pos, rot, speed, 1.0, bool(home or self.stalled[i])
 
         # ---- Back out (a failed insertion): along the socket axis to the pre-insertion pose --
@@ -491,18 +524,27 @@ class InsertionExpert(ScriptedExpert):
 
         # ---- Tilt: lay the plug, tip pressed home, in the pose it will rest in when released --
         if name == "tilt":
+            # Tipped progressively (tilt_speed rad per step, the rise along with it): a plug
+            # swung onto the socket walls at the controller's full turn rate hits them hard.
             rest = self._rest_rot(i, plug_rot)
+            full = rotation_angle(rest, plug_rot)
+            frac = 1.0 if full < 1e-9 else min(1.0, (steps + 1) * cfg.tilt_speed / full)
+            rest_now = axis_angle_to_mat(frac * rotation_error(rest, plug_rot)) @ plug_rot
             rise = view.up - np.dot(view.up, axis) * axis
-            rise *= cfg.release_rise * view.clearance / max(np.linalg.norm(rise), 1e-9)
-            pos, rot = self._tcp_for_tip(i, view.seated + cfg.push * axis + rise, rest)
-            done = rotation_angle(view.plug_rot, rest) < 0.03 or steps >= 40
-            return pos, rot, cfg.insert_speed, 1.0, bool(done)
+            rise *= frac * cfg.release_rise * view.clearance / max(np.linalg.norm(rise), 1e-9)
+            pos, rot = self._tcp_for_tip(i, view.seated + cfg.push * axis + rise, rest_now)
+            done = (frac >= 1.0 and rotation_angle(view.plug_rot, rest) < 0.03) or (
+                steps >= TILT_STEPS
+            )
+            pos, rot, speed = self._gentle(i, pos, rot, cfg.insert_speed)
+            return pos, rot, speed, 1.0, bool(done)
 
         # ---- Release: open the pads slowly where the plug sits ----------------------------------
         if name == "release":
             ramp = min(1.0, (steps + 1) / max(cfg.open_steps, 1))
             gripper = 1.0 + ramp * (pre_open - 1.0)
-            return hold_pos, hold_rot, fast, gripper, bool(ramp >= 1.0 and self._opened(i))
+            pos, rot, speed = self._gentle(i, hold_pos, hold_rot, fast)
+            return pos, rot, speed, gripper, bool(ramp >= 1.0 and self._opened(i))
 
         # ---- Withdraw: the open pads back off along the socket axis (not dragging the plug) --
         back = hold_pos - cfg.withdraw * axis
@@ -511,6 +553,23 @@ class InsertionExpert(ScriptedExpert):
 
         # ---- Retreat (and done): straight up, away from the seated plug ----------------------
         return back + cfg.retreat * up, hold_rot, cfg.retreat_speed, pre_open, None
+
+    def _gentle(self, i, pos, rot, speed):
+        """The goal (position, rotation, speed) limited by the insertion force ``f``, with
+        ``hold = force_hold x max_insertion_force``: below ``hold`` the goal is unchanged and
+        the speed scaled by ``1 - f / hold`` (the push builds up gently); up to
+        ``max_insertion_force`` the controller's target is held where it is; above it, the
+        target is backed off by ``force_backoff`` of its lead over the TCP (position and
+        rotation), since that lead over the blocked TCP is what pushes."""
+        cfg, view = self.config, self.views[i]
+        force, hold = view.insertion_force, cfg.force_hold * cfg.max_insertion_force
+        if force <= hold:
+            return pos, rot, speed * (1.0 - force / hold)
+        if force <= cfg.max_insertion_force:
+            return view.target_pos, view.target_rot, speed
+        keep = 1.0 - cfg.force_backoff
+        turn = axis_angle_to_mat(keep * rotation_error(view.target_rot, view.tcp_rot))
+        return view.tcp_pos + keep * (view.target_pos - view.tcp_pos), turn @ view.tcp_rot, 1.0
 
     def _rest_rot(self, i, plug_rot) -> np.ndarray:
         """The seated plug's rotation tipped (tail down, tip up) by ``release_tilt`` of the
@@ -573,6 +632,13 @@ class InsertionExpert(ScriptedExpert):
                     continue
                 snap["hold_pos"][i] = view.tcp_pos
                 snap["hold_rot"][i] = view.tcp_rot
+                if view.latched:
+                    # Held by its latch: nothing to tip; open the pads with the controller's
+                    # target where it is (still pressing gently home: backing it off to the TCP
+                    # would pull on the plug, enough to unseat a 10 N friction hold).
+                    snap["hold_pos"][i] = view.target_pos
+                    snap["hold_rot"][i] = view.target_rot
+                    fsm.goto("release", one)
             elif left == idx("tilt"):
                 # Release where the controller's target is (it leads the blocked TCP): the
                 # pads keep pressing the plug home while they open.

@@ -11,6 +11,9 @@ its controller, and calls the task's hooks, whose names say when they run:
 - ``reward_terms(model, data, action)``: named, unweighted terms; the environment multiplies
   them by ``weights`` and reports each in ``info``.
 - ``evaluate(model, data)``: success flags and diagnostics for ``info``.
+- ``after_step(model, data)``: after each control step's physics and forward pass (not on a
+  diverged step), before rewards: discrete changes of the simulation the task owns, such as
+  engaging or releasing a connector latch (an ``eq_active`` flag, so it is state).
 
 Task state kept across steps (e.g. a high-water mark) goes through ``get_state``/``set_state``
 so that environment snapshots reproduce episodes exactly.
@@ -88,6 +91,11 @@ class Task(ABC):
 
     def after_settle(self, model, data) -> None:
         """Called once the scene has settled at reset (e.g. to zero trackers)."""
+        del model, data
+
+    def after_step(self, model, data) -> None:
+        """Called after each control step's physics (state up to date, constraint forces of
+        that state included); may change state flags such as ``data.eq_active``."""
         del model, data
 
     @abstractmethod

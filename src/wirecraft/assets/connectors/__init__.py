@@ -7,7 +7,16 @@ from wirecraft.assets.connectors.base import (
     Connector,
     add_plug,
     add_port,
+    add_retention,
     make_connector,
 )
 
-__all__ = ["CONNECTORS", "FLIP_ABOUT_AXIS", "Connector", "add_plug", "add_port", "make_connector"]
+__all__ = [
+    "CONNECTORS",
+    "FLIP_ABOUT_AXIS",
+    "Connector",
+    "add_plug",
+    "add_port",
+    "add_retention",
+    "make_connector",
+]

@@ -19,6 +19,10 @@ class TemplateConnector(Connector):
     shell_length = 0.015  # m, insertable length
     tail_half = (TAIL_HALF_LENGTH, 0.007, 0.005)  # m, half extents of the part the gripper holds
     width, height = 0.010, 0.005
+    # What holds it seated ("latch", "friction" or "none") and the axial pull (N) it resists:
+    # a weld engaged on seating, released above that force (base.py, add_retention).
+    retention_mechanism = "none"
+    retention_force = 0.0
 
     def shell_rects(self):
         return [(-self.width / 2, self.width / 2, -self.height / 2, self.height / 2)]

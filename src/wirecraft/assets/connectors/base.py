@@ -17,6 +17,12 @@ cross-section offset outwards by the clearance (Minkowski offset by a square).
 Keying.  In a socket with clearance c the plug can rattle 2c across; a key feature can only
 block a wrong orientation if it stands out further than that slack.  Keyed families therefore
 size their key as ``max(nominal, 2 c + KEY_MARGIN)`` (see ethernet.py, displayport.py).
+
+Retention.  Each family says what holds a seated plug (``retention_mechanism``: ``latch``,
+``friction`` or ``none``) and the axial pull that overcomes it (``retention_force``, N).  The
+rigid plug has no springy latch tab nor contact springs, so ``add_retention`` models the hold
+as weld equalities between the plug's tip frame and the socket's seated frame (one per
+orientation the plug seats in), inactive until a task engages one (tasks/insertion.py).
 """
 
 from __future__ import annotations
@@ -60,6 +66,21 @@ class Connector:
     tail_half: ClassVar[Vec3]  # half extents of the grasp tail (x, y, z)
     # Length of shell left outside the socket when seated, so the tail never touches the port.
     seat_standoff: ClassVar[float] = 0.002
+    # What holds a seated plug in its socket, and the axial pull (N) that overcomes it.
+    retention_mechanism: ClassVar[str] = "none"
+    retention_force: ClassVar[float] = 0.0
+
+    @property
+    def retains(self) -> bool:
+        """True when a seated plug is held by a latch or by friction (not a plain peg)."""
+        return self.retention_mechanism != "none" and self.retention_force > 0.0
+
+    def seated_rolls(self) -> list[float]:
+        """Rolls (rad about the insertion axis) in which the plug seats: one per symmetric
+        orientation (a continuous symmetry has no distinct orientation to latch in)."""
+        if self.symmetry == 0:
+            return []
+        return [2.0 * np.pi * k / self.symmetry for k in range(self.symmetry)]
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -244,6 +265,64 @@ def add_port(
     body.add_site(name=f"{name}_entry", pos=(0.0, 0.0, 0.0), size=(0.002, 0, 0))
     body.add_site(name=f"{name}_seated", pos=(connector.cavity_depth, 0.0, 0.0), size=(0.002, 0, 0))
     return body
+
+
+# Retention welds: stiff enough that a latch holds its rated pull within a fraction of a
+# millimetre (a 10 g plug's weld is only as stiff as its impedance and time constant make it:
+# see docs/assets.md), soft enough (10 ms, critically damped) that engaging it settles the
+# plug into place over a few control steps instead of in one substep.
+RETENTION_SOLREF = (0.01, 1.0)
+RETENTION_SOLIMP = (0.99, 0.999, 0.001, 0.5, 2.0)
+RETENTION_MECHANISMS = ("none", "latch", "friction")
+# The weld holds the tip this far short of the back stop: a latch has axial play, and a weld
+# target on the stop face would press the plug into it forever (a standing contact force).
+RETENTION_PLAY = 0.0005  # m
+
+
+def add_retention(
+    spec: mujoco.MjSpec, connector: Connector, *, plug: str = "plug", port: str = "port"
+) -> list[str]:
+    """Weld equalities (inactive) holding the plug ``plug`` seated in the port ``port``: the
+    plug's tip frame on the socket's seated frame (``RETENTION_PLAY`` short of the back stop,
+    site ``{port}_retention{k}``), one weld per roll of ``seated_rolls`` (names
+    ``{plug}_retention{k}``).  None for a connector that does not retain.  Returns the
+    names."""
+    validation.one_of(
+        type(connector).__name__,
+        "retention_mechanism",
+        connector.retention_mechanism,
+        RETENTION_MECHANISMS,
+    )
+    if not connector.retains:
+        return []
+    if connector.symmetry == 0:
+        raise ValueError(
+            f"{type(connector).__name__}: a rotation-invariant connector has no orientation to "
+            f"latch in; give it retention_mechanism 'none'"
+        )
+    names = []
+    port_body = spec.body(port)
+    for k, roll in enumerate(connector.seated_rolls()):
+        target = f"{port}_retention{k}"
+        port_body.add_site(
+            name=target,
+            pos=(connector.cavity_depth - RETENTION_PLAY, 0.0, 0.0),
+            quat=quat_about((1.0, 0.0, 0.0), roll),
+            size=(0.002, 0, 0),
+        )
+        name = f"{plug}_retention{k}"
+        spec.add_equality(
+            name=name,
+            type=mujoco.mjtEq.mjEQ_WELD,
+            objtype=mujoco.mjtObj.mjOBJ_SITE,
+            name1=f"{plug}_tip",
+            name2=target,
+            active=False,
+            solref=RETENTION_SOLREF,
+            solimp=RETENTION_SOLIMP,
+        )
+        names.append(name)
+    return names
 
 
 FLIP_ABOUT_AXIS = quat_about((1.0, 0.0, 0.0), np.pi)  # 180 degrees about the insertion axis

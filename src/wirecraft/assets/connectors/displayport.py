@@ -25,6 +25,8 @@ class DisplayPortConnector(Connector):
     name = "displayport"
     symmetry = 1
     description = "DisplayPort-like shell, 16 x 4.8 mm, chamfered corner (most alignment-sensitive)"
+    retention_mechanism = "latch"
+    retention_force = 30.0  # N, see docs/assets.md (Retention)
     shell_length = 0.015
     tail_half = (TAIL_HALF_LENGTH, 0.0095, 0.0040)
     width, height, chamfer = 0.016, 0.0048, 0.0025

@@ -15,6 +15,8 @@ class EthernetConnector(Connector):
     name = "ethernet"
     symmetry = 1
     description = "RJ45-like, 11.7 x 6 mm body with a latch tab on top (about 8 mm high)"
+    retention_mechanism = "latch"
+    retention_force = 50.0  # N, see docs/assets.md (Retention)
     shell_length = 0.018
     tail_half = (TAIL_HALF_LENGTH, 0.0070, 0.0055)
     width, height = 0.0117, 0.006

@@ -14,6 +14,8 @@ class UsbAConnector(Connector):
     name = "usb_a"
     symmetry = 2
     description = "USB-A-like shell, 12 x 4.5 mm"
+    retention_mechanism = "friction"
+    retention_force = 10.0  # N, see docs/assets.md (Retention)
     shell_length = 0.014
     tail_half = (TAIL_HALF_LENGTH, 0.0080, 0.0040)
     width, height = 0.012, 0.0045
