@@ -25,6 +25,7 @@ from wirecraft.assets.fixtures import ChannelConfig, add_board, add_channel, add
 from wirecraft.assets.wires import WIRE_MODELS, WireConfig, add_wire
 from wirecraft.render import FastRenderer, ViewPoint, save_png
 from wirecraft.scene import add_table, compile_spec, new_spec
+from wirecraft.video import write_mp4
 
 BOARD_TOP = 0.01
 DROP_HEIGHT = 0.04  # m above the channel floor
@@ -62,30 +63,6 @@ VIDEO_SIZE = 240
 SUCCESS_HOLD_STEPS = 30  # 0.5 s at 60 Hz: the episode (and its video) ends then
 
 
-def write_mp4(frames, path: str | Path, fps: int = VIDEO_FPS) -> Path:
-    """Write RGB frames (T, H, W, 3) uint8 as an H.264 MP4 (PyAV; H and W even)."""
-    from fractions import Fraction
-
-    import av
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    frames = np.asarray(frames)
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("h264", fps, options={"crf": "23", "preset": "veryfast"})
-        stream.pix_fmt = "yuv420p"
-        stream.height, stream.width = frames.shape[1:3]
-        stream.time_base = Fraction(1, fps)
-        for i, image in enumerate(frames):
-            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
-            frame.pts = i
-            for packet in stream.encode(frame):
-                container.mux(packet)
-        for packet in stream.encode():
-            container.mux(packet)
-    return path
-
-
 def run_task_demo(out_dir: str | Path, seed: int = 0) -> list[dict]:
     """One seeded episode of every task family with its scripted expert; writes a side-camera
     video per task and ``tasks.png``; returns one summary row per task."""
@@ -120,7 +97,7 @@ def run_task_demo(out_dir: str | Path, seed: int = 0) -> list[dict]:
             if terminated or truncated or held >= SUCCESS_HOLD_STEPS:
                 break
         renderer.close()
-        video = write_mp4(frames, out_dir / f"{task}.mp4")
+        video = write_mp4(frames, out_dir / f"{task}.mp4", VIDEO_FPS)
         picks = np.linspace(0, len(frames) - 1, 4).round().astype(int)
         strips.append(np.concatenate([frames[i] for i in picks], axis=1))
         rows.append(

@@ -17,51 +17,11 @@ import numpy as np
 from wirecraft.envs.env import CONTROL_HZ
 from wirecraft.evaluation import retention
 from wirecraft.evaluation.policies import policy_phase_names
+from wirecraft.video import VideoWriter
 
 FRAME_EVERY = 2  # control steps per video frame: 30 frames/s
 SIDE_SIZE = (360, 270)  # width, height
 WRIST_SIZE = (270, 270)
-
-
-def _codec() -> str:
-    import av
-
-    for name in ("libx264", "h264", "libopenh264", "mpeg4"):
-        try:
-            av.codec.Codec(name, "w")
-            return name
-        except Exception:  # noqa: BLE001 - PyAV raises several kinds for a missing encoder
-            continue
-    raise RuntimeError("PyAV has no H.264 or MPEG-4 encoder")
-
-
-class VideoWriter:
-    """Frames (H, W, 3 uint8) to an MP4 file."""
-
-    def __init__(self, path: str | Path, width: int, height: int, fps: int) -> None:
-        import av
-
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.container = av.open(str(self.path), mode="w")
-        codec = _codec()
-        self.stream = self.container.add_stream(codec, rate=fps)
-        self.stream.width, self.stream.height = width, height
-        self.stream.pix_fmt = "yuv420p"
-        if codec == "libx264":
-            self.stream.options = {"crf": "26", "preset": "veryfast"}
-
-    def add(self, frame: np.ndarray) -> None:
-        import av
-
-        video_frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
-        for packet in self.stream.encode(video_frame):
-            self.container.mux(packet)
-
-    def close(self) -> None:
-        for packet in self.stream.encode():
-            self.container.mux(packet)
-        self.container.close()
 
 
 def overlay(frame: np.ndarray, lines: list[str], footer: str, footer_ok: bool | None):
