@@ -78,6 +78,15 @@ def batch_obs(obs):
     return obs[None] if obs.ndim == 1 else obs
 
 
+def state_batch(obs, obs_dim: int) -> np.ndarray:
+    """``batch_obs`` for a state policy: (N, obs_dim) float64, or a ValueError naming the
+    width it expected."""
+    obs = batch_obs(obs)
+    if obs.shape[-1] != obs_dim:
+        raise ValueError(f"observations must have {obs_dim} columns, got {obs.shape}")
+    return obs
+
+
 def env_control(env) -> str:
     """The control mode of a single environment, a wrapped one or a WireCraft vector env."""
     if hasattr(env, "envs"):

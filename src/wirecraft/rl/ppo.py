@@ -28,6 +28,7 @@ from wirecraft.rl.common import (
     EpisodeTracker,
     ProgressTable,
     WallClock,
+    state_batch,
 )
 from wirecraft.rl.config import PPOConfig
 
@@ -284,11 +285,7 @@ class StatePolicy:
         from tensordict import TensorDict
 
         torch = _torch()
-        obs = np.asarray(obs, dtype=np.float64)
-        if obs.ndim == 1:
-            obs = obs[None]
-        if obs.shape[-1] != self.obs_dim:
-            raise ValueError(f"observations must have {self.obs_dim} columns, got {obs.shape}")
+        obs = state_batch(obs, self.obs_dim)
         with torch.no_grad():
             td = TensorDict(
                 {"policy": torch.as_tensor(obs, dtype=torch.float32)}, batch_size=[len(obs)]

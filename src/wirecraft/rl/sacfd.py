@@ -34,6 +34,7 @@ from wirecraft.rl.common import (
     ProgressTable,
     WallClock,
     final_observations,
+    state_batch,
     summarize,
 )
 from wirecraft.rl.config import SACfDConfig
@@ -487,11 +488,7 @@ class SACPolicy:
         del env_ids
 
     def act(self, obs) -> np.ndarray:
-        obs = np.asarray(obs, dtype=np.float64)
-        if obs.ndim == 1:
-            obs = obs[None]
-        if obs.shape[-1] != self.obs_dim:
-            raise ValueError(f"observations must have {self.obs_dim} columns, got {obs.shape}")
+        obs = state_batch(obs, self.obs_dim)
         with torch.no_grad():
             x = torch.as_tensor(obs, dtype=torch.float32)
             if self.scaler is not None:
