@@ -51,19 +51,24 @@ def test_environment_zero_is_the_same_whatever_num_envs_and_threads(task):
     np.testing.assert_array_equal(np.concatenate(single), reference)
 
 
-def test_a_diverging_environment_leaves_the_others_untouched():
+@pytest.mark.parametrize("batched", [True, False])
+def test_a_diverging_environment_leaves_the_others_untouched(batched):
     steps, victim = 6, 2
     actions = actions_for(wirecraft.make_vec("insertion", 4, threads=2), steps)
 
     def trajectories(inject):
-        venv = wirecraft.make_vec("insertion", 4, threads=2)
+        venv = wirecraft.make_vec("insertion", 4, threads=2, batched=batched)
+        assert venv.batched == batched
         obs, _ = venv.reset(seed=SEED)
         out, flags = [obs.copy()], []
         for k, a in enumerate(actions):
             if inject and k == 3:
                 env = venv.envs[victim]
                 dof = env.task.assembly.plug_dof
-                env.data.qvel[dof : dof + 6] = 1e6
+                # The batched step keeps the states in the batch's rows; the other, in each
+                # environment's MjData.
+                qvel = venv.batch.qvel[victim] if batched else env.data.qvel
+                qvel[dof : dof + 6] = 1e6
             obs, reward, terminated, truncated, infos = venv.step(a)
             out.append(obs.copy())
             flags.append((truncated.copy(), infos["diverged"].copy()))

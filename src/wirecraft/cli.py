@@ -222,6 +222,12 @@ def _bench_args(p):
     )
     p.add_argument("--threads", default="1,2", help="envs suite: comma-separated thread counts")
     p.add_argument("--warmup", type=float, default=1.0, help="envs suite: warm-up seconds")
+    p.add_argument(
+        "--full-info",
+        action="store_true",
+        help="envs suite: with per-environment diagnostics and synced environments "
+        "(as evaluation runs); default: as training runs",
+    )
     p.add_argument("--out", default="out/bench", help="envs suite: folder for CSV and PNG")
     p.add_argument("--json", metavar="PATH", help="write the rows as JSON")
 
@@ -254,7 +260,8 @@ def cmd_bench(args) -> int:
             WIRE_MODELS.get(wire)
         counts = _int_list("--num-envs", args.num_envs or "1,4,16,64,256")
         threads = _int_list("--threads", args.threads)
-        rows = envs.run(tasks, wire_models, counts, threads, args.seconds, args.warmup)
+        info = "full" if args.full_info else "training"
+        rows = envs.run(tasks, wire_models, counts, threads, args.seconds, args.warmup, info)
         envs.print_table(rows)
         envs.write_csv(rows, Path(args.out) / "bench_envs.csv")
         envs.plot(rows, Path(args.out) / "bench_envs.png")

@@ -36,11 +36,12 @@ import numpy as np
 from wirecraft import validation
 from wirecraft.assets.robots import RobotHandle
 from wirecraft.assets.robots.kinematics import (
-    axis_angle_to_mat,
-    dls,
-    dls_limited,
+    axis_angle_to_mats,
+    chain_jacobian,
+    dls_batch,
+    dls_limited_batch,
     rotation_error,
-    site_jacobian,
+    rotation_errors,
 )
 from wirecraft.registry import Registry
 
@@ -79,6 +80,67 @@ class ControlConfig:
             validation.positive(owner, name, getattr(self, name))
         validation.non_negative(owner, "limit_margin", self.limit_margin)
         validation.in_range(owner, "nullspace_gain", self.nullspace_gain, 0.0, 1.0)
+
+
+@dataclass
+class ControlState:
+    """The targets of N controllers, one row each (a single environment: N = 1).  Every field
+    is a numpy array with a leading axis of N."""
+
+    joint_targets: np.ndarray  # (N, dof) last arm servo targets, rad
+    gripper_target: np.ndarray  # (N,) commanded pad gap, m
+    target_pos: np.ndarray  # (N, 3) Cartesian target, world
+    target_rot: np.ndarray  # (N, 3, 3)
+    base_pos_world: np.ndarray  # (N, 3) robot base frame, world
+    base_rot_world: np.ndarray  # (N, 3, 3)
+
+    FIELDS = ("joint_targets", "gripper_target", "target_pos", "target_rot")
+    FIELDS += ("base_pos_world", "base_rot_world")
+
+    @classmethod
+    def gather(cls, controllers) -> ControlState:
+        """Stack the targets of these controllers (one row each)."""
+        return cls(
+            **{
+                f: np.stack([np.asarray(_target(c, f), float) for c in controllers])
+                for f in cls.FIELDS
+            }
+        )
+
+    def load(self, i: int, controller: Controller) -> None:
+        """Row ``i`` := the targets of ``controller``."""
+        for f in self.FIELDS:
+            getattr(self, f)[i] = _target(controller, f)
+
+    def store(self, i: int, controller: Controller) -> None:
+        """``controller``'s targets := row ``i`` (copies: the controller owns its arrays)."""
+        controller.joint_targets = self.joint_targets[i].copy()
+        controller.gripper_target = float(self.gripper_target[i])
+        if hasattr(controller, "target_pos"):
+            for f in self.FIELDS[2:]:
+                setattr(controller, f, getattr(self, f)[i].copy())
+
+    def copy(self) -> ControlState:
+        return ControlState(**{f: getattr(self, f).copy() for f in self.FIELDS})
+
+    def restore(self, rows, other: ControlState) -> None:
+        """Rows ``rows`` := those of ``other``."""
+        for f in self.FIELDS:
+            getattr(self, f)[rows] = getattr(other, f)[rows]
+
+
+def _target(controller, field: str):
+    """A controller's target ``field``; the Cartesian ones default for joint control."""
+    return getattr(controller, field) if hasattr(controller, field) else _DEFAULTS[field]
+
+
+_DEFAULTS = {
+    "gripper_target": 0.0,
+    "target_pos": np.zeros(3),
+    "target_rot": np.eye(3),
+    "base_pos_world": np.zeros(3),
+    "base_rot_world": np.eye(3),
+}
 
 
 def control_period(model: mujoco.MjModel, config: ControlConfig | None = None) -> float:
@@ -129,21 +191,40 @@ class Controller:
         """Validate and clip ``action``, compute servo targets, write them to ``data.ctrl``."""
         action = self.check_action(action)
         q = data.qpos[self.index.arm_qpos].copy()
-        target, velocity = self._arm_targets(data, q, action[:-1])
+        state = ControlState.gather([self])
+        if self.needs_kinematics:
+            self.sync(data)
+            pos, rot, jac = self.tcp_kinematics(q)
+            kinematics = (pos[None], rot[None], jac[None])
+        else:
+            kinematics = None
+        ctrl = self.compute(state, q[None], kinematics, action[None])
+        state.store(0, self)
+        data.ctrl[self.index.arm_act] = ctrl[0]
+        data.ctrl[self.index.gripper_act] = self.gripper_target
+
+    needs_kinematics = False  # whether ``compute`` needs the TCP pose and Jacobian
+
+    def compute(self, state: ControlState, q: np.ndarray, kinematics, actions) -> np.ndarray:
+        """Servo targets of N controllers at once (the vector environment's step; a single
+        environment is N = 1): ``q`` (N, dof) measured arm joints, ``kinematics`` the TCP's
+        world position (N, 3), rotation (N, 3, 3) and Jacobian (N, 6, dof) over the arm joints
+        (or None for joint control), ``actions`` (N, action_dim) already clipped.  Updates
+        ``state`` and returns the arm controls (N, dof); the gripper's are
+        ``state.gripper_target``."""
+        target, velocity = self._arm_targets(state, q, kinematics, actions[:, :-1])
         # Servo targets lead the measured joints by at most a few periods at rated speed, and
         # by at most half the room left to a (soft) limit: joints brake before their limits.
         up = np.minimum(self.max_lead, LIMIT_BRAKE * (self.upper - q))
         down = np.minimum(self.max_lead, LIMIT_BRAKE * (q - self.lower))
-        self.joint_targets = np.clip(np.clip(target, q - down, q + up), self.lower, self.upper)
+        state.joint_targets = np.clip(np.clip(target, q - down, q + up), self.lower, self.upper)
         # Velocity feed-forward: MuJoCo's servo force is kp (ctrl - q) - kv qdot, so shifting
         # the target by kv / kp * v makes its damping act on (v - qdot) and the servo follows a
         # moving target without the ramp lag kv v / kp (which differs per joint and would bend
         # the tool's path).
-        ctrl = self.joint_targets + self.kv_over_kp * velocity
-        ctrl = np.clip(np.clip(ctrl, q - down, q + up), self.lower, self.upper)
-        data.ctrl[self.index.arm_act] = ctrl
-        self.gripper_target = 0.5 * (1.0 - float(action[-1])) * self.robot.max_opening
-        data.ctrl[self.index.gripper_act] = self.gripper_target
+        ctrl = state.joint_targets + self.kv_over_kp * velocity
+        state.gripper_target = 0.5 * (1.0 - actions[:, -1]) * self.robot.max_opening
+        return np.clip(np.clip(ctrl, q - down, q + up), self.lower, self.upper)
 
     def step(self, data: mujoco.MjData, action) -> None:
         """``apply`` then advance the physics by one control period."""
@@ -196,13 +277,22 @@ class Controller:
         site = self.index.tcp_site
         pos = kin.site_xpos[site].copy()
         rot = kin.site_xmat[site].reshape(3, 3).copy()
-        return pos, rot, site_jacobian(self.model, kin, site, self.index.arm_dof)
+        jac = self.tcp_jacobian(kin.cdof[None], kin.subtree_com[None], pos[None])[0]
+        return pos, rot, jac
+
+    def tcp_jacobian(self, cdof, subtree_com, tcp_pos) -> np.ndarray:
+        """(N, 6, dof) TCP Jacobians over the arm joints from N simulations' ``cdof`` and
+        ``subtree_com`` (bit-identical to ``mj_jacSite``)."""
+        body = self.model.site_bodyid[self.index.tcp_site]
+        root = self.model.body_rootid[body]
+        return chain_jacobian(cdof, subtree_com, tcp_pos, root, self.index.arm_dof)
 
     def sync(self, data: mujoco.MjData) -> None:
         self._kin.qpos[:] = data.qpos
 
-    def _arm_targets(self, data: mujoco.MjData, q: np.ndarray, arm_action: np.ndarray):
-        """Servo targets (dof,) and the commanded joint velocity (dof,) for the feed-forward."""
+    def _arm_targets(self, state: ControlState, q, kinematics, arm_actions):
+        """Servo targets (N, dof) and commanded joint velocities (N, dof) for the
+        feed-forward."""
         raise NotImplementedError
 
 
@@ -216,9 +306,9 @@ class JointController(Controller):
     def arm_action_dim(self) -> int:
         return self.robot.dof
 
-    def _arm_targets(self, data, q, arm_action):
-        step = arm_action * self.config.joint_speed_fraction * self.max_step
-        return self.joint_targets + step, step / self.period
+    def _arm_targets(self, state, q, kinematics, arm_actions):
+        step = arm_actions * self.config.joint_speed_fraction * self.max_step
+        return state.joint_targets + step, step / self.period
 
 
 @CONTROLLERS.register("cartesian")
@@ -251,43 +341,50 @@ class CartesianController(Controller):
         self.base_pos_world = self._kin.site_xpos[site].copy()
         self.base_rot_world = self._kin.site_xmat[site].reshape(3, 3).copy()
 
-    def _rotation_delta(self, arm_action: np.ndarray) -> np.ndarray:
-        return arm_action[3:6] * self.config.rotation_scale
+    needs_kinematics = True
 
-    def _arm_targets(self, data, q, arm_action):
+    def _rotation_delta(self, arm_actions: np.ndarray) -> np.ndarray:
+        return arm_actions[:, 3:6] * self.config.rotation_scale
+
+    def _arm_targets(self, state, q, kinematics, arm_actions):
         cfg = self.config
-        self.sync(data)
-        pos, rot, jac = self.tcp_kinematics(q)
-        base = self.base_rot_world
+        pos, rot, jac = kinematics
+        base = state.base_rot_world
         # Accumulate the delta in the target pose (base-frame deltas -> world).
-        move = base @ (arm_action[:3] * cfg.translation_scale)
-        rotvec = base @ self._rotation_delta(arm_action)
-        self.target_pos = self.target_pos + move
-        self.target_rot = axis_angle_to_mat(rotvec) @ self.target_rot
+        move = (base @ (arm_actions[:, :3] * cfg.translation_scale)[:, :, None])[:, :, 0]
+        rotvec = (base @ self._rotation_delta(arm_actions)[:, :, None])[:, :, 0]
+        state.target_pos = state.target_pos + move
+        state.target_rot = axis_angle_to_mats(rotvec) @ state.target_rot
         # Keep the target within reach of the measured TCP (no wind-up when blocked).
-        lead = self.target_pos - pos
-        dist = float(np.linalg.norm(lead))
-        if dist > cfg.max_lead_pos:
-            self.target_pos = pos + lead * (cfg.max_lead_pos / dist)
-        rot_err = rotation_error(self.target_rot, rot)
-        angle = float(np.linalg.norm(rot_err))
-        if angle > cfg.max_lead_rot:
-            rot_err *= cfg.max_lead_rot / angle
-            self.target_rot = axis_angle_to_mat(rot_err) @ rot
-        err = np.concatenate([self.target_pos - pos, rot_err])
-        dq = dls_limited(jac, err, cfg.ik_damping, q, self.lower, self.upper)
+        lead = state.target_pos - pos
+        dist = np.linalg.norm(lead, axis=1)
+        far = dist > cfg.max_lead_pos
+        if far.any():
+            state.target_pos[far] = pos[far] + lead[far] * (cfg.max_lead_pos / dist[far])[:, None]
+        rot_err = rotation_errors(state.target_rot, rot)
+        angle = np.linalg.norm(rot_err, axis=1)
+        wide = angle > cfg.max_lead_rot
+        if wide.any():
+            rot_err[wide] *= (cfg.max_lead_rot / angle[wide])[:, None]
+            state.target_rot[wide] = axis_angle_to_mats(rot_err[wide]) @ rot[wide]
+        err = np.concatenate([state.target_pos - pos, rot_err], axis=1)
+        dq = dls_limited_batch(jac, err, cfg.ik_damping, q, self.lower, self.upper)
         if self.robot.dof > 6 and cfg.nullspace_gain > 0.0:
             dq += self._nullspace(jac, q, dq)
         # Scale the whole step (keeping its direction) so no joint leads by more than allowed.
-        ratio = float(np.max(np.abs(dq) / self.max_lead))
-        velocity = dls(jac, np.concatenate([move, rotvec]) / self.period, cfg.ik_damping)
-        return q + (dq / ratio if ratio > 1.0 else dq), velocity
+        ratio = np.max(np.abs(dq) / self.max_lead, axis=1)
+        velocity = dls_batch(
+            jac, np.concatenate([move, rotvec], axis=1) / self.period, cfg.ik_damping
+        )
+        scaled = np.where(ratio[:, None] > 1.0, dq / np.maximum(ratio, 1.0)[:, None], dq)
+        return q + scaled, velocity
 
     def _nullspace(self, jac: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        """Pull toward home inside the Jacobian's null space (redundant arms)."""
+        """Pull toward home inside the Jacobian's null space (redundant arms), (N, dof)."""
         pull = self.config.nullspace_gain * (self.robot.home_qpos - q)
-        projected = pull - dls(jac, jac @ pull, 1e-4)
-        inside = (q + dq + projected >= self.lower) & (q + dq + projected <= self.upper)
+        projected = pull - dls_batch(jac, (jac @ pull[:, :, None])[:, :, 0], 1e-4)
+        moved = q + dq + projected
+        inside = (moved >= self.lower) & (moved <= self.upper)
         return np.where(inside, projected, 0.0)
 
 
@@ -301,8 +398,8 @@ class CartesianFixedController(CartesianController):
     def arm_action_dim(self) -> int:
         return 3
 
-    def _rotation_delta(self, arm_action: np.ndarray) -> np.ndarray:
-        return np.zeros(3)
+    def _rotation_delta(self, arm_actions: np.ndarray) -> np.ndarray:
+        return np.zeros((arm_actions.shape[0], 3))
 
 
 def make_controller(

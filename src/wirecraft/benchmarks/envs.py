@@ -4,6 +4,11 @@ For each (task, wire, num_envs, threads): reset, warm up, then time ``step`` ove
 window.  The raw figure steps the same model and substeps with ``mujoco.batch`` alone (no
 Python environment code, controls held), from the same states; ``overhead_ratio`` is the
 environment's step time over the raw one.  Rows as SPEC section 1; CSV, JSON and a PNG plot.
+
+Two configurations (the ``info`` column): ``training`` (the default, as ``wirecraft train`` runs
+it: ``diagnostics=False, sync_envs=False``, success flags and reward terms in ``info``) and
+``full`` (``--full-info``: per-environment force and cable diagnostics, and every environment's
+own ``MjData`` kept up to date, as evaluation and the experts use it).
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ NUM_ENVS = (1, 4, 16, 64, 256, 1024)
 THREADS = (1, 2)
 FIELDS = (
     "task",
+    "info",
     "wire",
     "num_envs",
     "threads",
@@ -45,15 +51,27 @@ def _timed(call, seconds: float, warmup: float) -> float:
             return elapsed / calls
 
 
+INFO_CONFIGS = {
+    "training": {"diagnostics": False, "sync_envs": False},
+    "full": {"diagnostics": True, "sync_envs": True},
+}
+
+
 def measure(
-    task: str, wire: str, num_envs: int, threads: int, seconds: float, warmup: float
+    task: str,
+    wire: str,
+    num_envs: int,
+    threads: int,
+    seconds: float,
+    warmup: float,
+    info: str = "training",
 ) -> dict:
     import mujoco
 
     import wirecraft
     from wirecraft.envs.env import STATE_SPEC
 
-    venv = wirecraft.make_vec(task, num_envs, threads=threads, wire=wire)
+    venv = wirecraft.make_vec(task, num_envs, threads=threads, wire=wire, **INFO_CONFIGS[info])
     venv.reset(seed=0)
     rng = np.random.default_rng(0)
 
@@ -63,13 +81,15 @@ def measure(
     env_time = _timed(env_step, seconds, warmup)
     # Raw physics: the same model, states and substeps, stepped by the batch alone.
     batch = venv.batch
-    for i, env in enumerate(venv.envs):
-        mujoco.mj_getState(venv.model, env.data, batch.state[i], STATE_SPEC)
+    if not venv.batched:  # a batched environment's rows already hold its states
+        for i, env in enumerate(venv.envs):
+            mujoco.mj_getState(venv.model, env.data, batch.state[i], STATE_SPEC)
     raw_time = _timed(lambda: batch.step(nstep=SUBSTEPS), seconds, warmup)
     venv.close()
     control = num_envs / env_time
     return {
         "task": task,
+        "info": info,
         "wire": wire,
         "num_envs": num_envs,
         "threads": threads,
@@ -81,23 +101,32 @@ def measure(
     }
 
 
-def run(tasks, wires, num_envs, threads, seconds: float = 5.0, warmup: float = 1.0):
+def run(
+    tasks,
+    wires,
+    num_envs,
+    threads,
+    seconds: float = 5.0,
+    warmup: float = 1.0,
+    info: str = "training",
+):
     from tqdm import tqdm
 
     cases = [(t, w, n, k) for t in tasks for w in wires for n in num_envs for k in threads]
     return [
-        measure(*case, seconds, warmup) for case in tqdm(cases, desc="bench envs", unit="config")
+        measure(*case, seconds, warmup, info)
+        for case in tqdm(cases, desc="bench envs", unit="config")
     ]
 
 
 def print_table(rows: list[dict]) -> None:
     print(
-        f"{'task':10} {'wire':12} {'envs':>5} {'thr':>3} {'control/s':>10} {'physics/s':>11}"
-        f" {'x real':>8} {'raw phys/s':>11} {'env/raw':>8}"
+        f"{'task':10} {'info':8} {'wire':12} {'envs':>5} {'thr':>3} {'control/s':>10}"
+        f" {'physics/s':>11} {'x real':>8} {'raw phys/s':>11} {'env/raw':>8}"
     )
     for r in rows:
         print(
-            f"{r['task']:10} {r['wire']:12} {r['num_envs']:>5} {r['threads']:>3} "
+            f"{r['task']:10} {r['info']:8} {r['wire']:12} {r['num_envs']:>5} {r['threads']:>3} "
             f"{r['control_steps_per_s']:>10.0f} {r['physics_steps_per_s']:>11.0f} "
             f"{r['realtime_factor']:>8.1f} {r['raw_physics_steps_per_s']:>11.0f} "
             f"{r['overhead_ratio']:>8.2f}"

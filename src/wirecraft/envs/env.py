@@ -25,6 +25,7 @@ from wirecraft.assets.wires import WIRE_MODELS, WireConfig
 from wirecraft.control import CONTROLLERS, ControlConfig, make_controller
 from wirecraft.scene import add_table, compile_spec, new_spec
 from wirecraft.tasks import TASKS
+from wirecraft.tasks.base import weighted_reward
 
 CONTROL_HZ = 60
 SUBSTEPS = 8
@@ -77,6 +78,7 @@ class WireCraftEnv(gym.Env):
         render_mode: str | None = None,
         episode_seconds: float = 8.0,
         wire_config: WireConfig | None = None,
+        diagnostics: bool = True,
         **task_kwargs: Any,
     ) -> None:
         task_cls = TASKS.get(task)
@@ -95,12 +97,16 @@ class WireCraftEnv(gym.Env):
         self.robot_name, self.wire_name, self.control_name = robot, wire, control
         self.obs_mode, self.image_size, self.render_mode = obs_mode, image_size, render_mode
         self.max_steps = int(round(episode_seconds * CONTROL_HZ))
+        # False: info leaves out the force and cable diagnostics (per-environment contact
+        # walks that RL training never reads; the vector environment is faster without them).
+        self.diagnostics = bool(diagnostics)
 
         spec = new_spec(f"{task}_{robot}_{wire}", timestep=TIMESTEP)
         add_table(spec)
         self.robot = add_robot(spec, robot)
         _add_wrist_sensor(spec, self.robot.hand_body)
         self.task.build_scene(spec, wire_config or WireConfig(model=wire))
+        self.task.add_contact_sensors(spec, self.robot)
         self.model = compile_spec(spec)
         # MuJoCo would otherwise reset a diverged simulation silently; we detect and report it.
         self.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
@@ -164,7 +170,7 @@ class WireCraftEnv(gym.Env):
         obs = self._observe()
         info = {
             "instruction": self.task.instruction,
-            **self.task.evaluate(model, data),
+            **self.task.evaluate(model, data, self.diagnostics),
             "diverged": False,
             "reset_attempts": attempt,
         }
@@ -229,12 +235,12 @@ class WireCraftEnv(gym.Env):
         self.task.after_step(model, data)
         clipped = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
         terms = self.task.reward_terms(model, data, clipped)
-        weighted = {k: self.task.weights[k] * v for k, v in terms.items()}
-        reward = float(sum(weighted.values()))
+        weighted, total = weighted_reward(terms, self.task.weights)
+        reward = float(total)
         info = {
-            **self.task.evaluate(model, data),
+            **self.task.evaluate(model, data, self.diagnostics),
             "diverged": False,
-            **{f"reward/{k}": v for k, v in weighted.items()},
+            **{f"reward/{k}": float(v) for k, v in weighted.items()},
         }
         truncated = self._steps >= self.max_steps
         obs = self._observe()
@@ -263,7 +269,7 @@ class WireCraftEnv(gym.Env):
 
     def _info_without_reward(self) -> dict:
         return {
-            **self.task.evaluate(self.model, self.data),
+            **self.task.evaluate(self.model, self.data, self.diagnostics),
             **{f"reward/{k}": 0.0 for k in self.task.weights},
         }
 

@@ -10,6 +10,19 @@ channel shape, wire state) is state, so nothing is rebuilt.
 Seeds: ``reset(seed=s)`` gives environment i the seed derived from (s, i) alone, so
 environment i sees the same episodes whatever ``num_envs`` and ``threads`` are.
 
+Batched tasks (``Task.batched``, e.g. insertion) with state observations take the batched
+step (``batched=True``, the default where possible): the controller, the task's latch logic,
+reward, success and observation run once on (num_envs, ...) arrays (``ControlState``, a
+``Frame`` of the batch's bound fields) instead of once per environment, with the same code a
+single environment runs for N = 1, so episodes stay bit-identical.  The batch's state rows are
+then the environments' state.  With ``sync_envs=True`` (the default) each environment's
+``MjData``, controller targets and task trackers are brought up to date after every step
+(``Batch.get_data``), and what is written into them between steps (an external force, a
+placed plug) is taken into the batch before the next, so ``envs[i]`` behaves as in the
+per-environment step; ``sync_envs=False`` skips both per-environment copies, for consumers
+that only call ``step`` and read what it returns (RL training).  Other tasks and image
+observations step per environment.
+
 Autoreset: gymnasium's SAME_STEP mode.  An environment whose episode ends (time limit or
 divergence) is reset within the same ``step``; its last observation and info are in
 ``infos["final_obs"]`` / ``infos["final_info"]``, masked by ``infos["_final_obs"]``.  A
@@ -25,7 +38,12 @@ from gymnasium.vector.utils import batch_space, create_empty_array
 from mujoco.batch import Batch, SimulationError
 
 from wirecraft import validation
+from wirecraft.control import ControlState
 from wirecraft.envs.env import STATE_SPEC, SUBSTEPS, WireCraftEnv
+from wirecraft.tasks.base import weighted_reward
+from wirecraft.tasks.frame import Frame
+
+ACC = mujoco.mjtStage.mjSTAGE_ACC.value
 
 
 def env_seed(seed: int, index: int) -> int:
@@ -35,7 +53,16 @@ def env_seed(seed: int, index: int) -> int:
 
 
 class WireCraftVectorEnv(VectorEnv):
-    def __init__(self, task: str, num_envs: int, *, threads: int = 0, **kwargs) -> None:
+    def __init__(
+        self,
+        task: str,
+        num_envs: int,
+        *,
+        threads: int = 0,
+        batched: bool | None = None,
+        sync_envs: bool = True,
+        **kwargs,
+    ) -> None:
         validation.at_least_int("make_vec", "num_envs", num_envs, 1)
         validation.at_least_int("make_vec", "threads", threads, 0)
         if kwargs.get("render_mode") == "human":
@@ -58,6 +85,24 @@ class WireCraftVectorEnv(VectorEnv):
         self._obs = create_empty_array(self.single_observation_space, num_envs)
         if isinstance(self._obs, dict):  # text (the instruction) batches as a tuple: fill a list
             self._obs = {k: list(v) if isinstance(v, tuple) else v for k, v in self._obs.items()}
+        possible = first.task.batched and first.obs_mode == "state"
+        if batched and not possible:
+            raise ValueError(
+                f"make_vec: batched=True needs a batched task ({first.task.name} is "
+                f"{'' if first.task.batched else 'not '}batched) and obs_mode='state' "
+                f"(got {first.obs_mode!r})"
+            )
+        self.batched = possible if batched is None else bool(batched)
+        self.sync_envs = bool(sync_envs)
+        if self.batched:
+            self.frame = Frame.of_batch(self.batch)
+            self._ctrl = self.batch.bind("ctrl")
+            self.controls = ControlState.gather([env.controller for env in self.envs])
+            self.trackers = {
+                name: np.full(num_envs, value) for name, value in first.task.trackers.items()
+            }
+            self.steps = np.zeros(num_envs, int)
+            self._incoming = np.empty_like(self.batch.state)
 
     # -- gymnasium vector API ---------------------------------------------------------------
     def reset(self, *, seed=None, options: dict | None = None):
@@ -74,6 +119,8 @@ class WireCraftVectorEnv(VectorEnv):
             infos = self._add_info(infos, info, i)
         for i, obs in observations:
             self._write_obs(i, obs)
+        if self.batched:
+            self._load_rows(np.flatnonzero(mask))
         return self._obs_copy(), infos
 
     def step(self, actions):
@@ -85,6 +132,8 @@ class WireCraftVectorEnv(VectorEnv):
         bad = np.flatnonzero(~np.all(np.isfinite(actions), axis=1))
         if bad.size:
             raise ValueError(f"actions of environments {bad.tolist()} contain NaN or inf")
+        if self.batched:
+            return self._step_batched(actions)
         befores = [env.begin_step(a) for env, a in zip(self.envs, actions, strict=True)]
         failed = self._step_physics()
         rewards = np.zeros(self.num_envs)
@@ -112,7 +161,137 @@ class WireCraftVectorEnv(VectorEnv):
             env.close()
 
     def render(self):
+        if self.batched and not self.sync_envs:
+            for i in range(self.num_envs):
+                self._sync_env(i)
         return tuple(env.render() for env in self.envs)
+
+    # -- the batched step --------------------------------------------------------------------
+    def _load_rows(self, ids, *, only_changed: bool = False) -> None:
+        """Make the batch rows ``ids`` the state of those environments: their MjData,
+        controller targets, task trackers and step counts (after a reset, or anything written
+        into them between steps).  ``only_changed``: recompute derived fields only for rows
+        whose physics state differs from the batch's."""
+        ids = np.asarray(ids, dtype=int)
+        if not ids.size:
+            return
+        incoming = self._incoming[: ids.size]
+        for k, i in enumerate(ids):
+            env = self.envs[i]
+            mujoco.mj_getState(self.model, env.data, incoming[k], STATE_SPEC)
+            self.controls.load(i, env.controller)
+            for name, values in self.trackers.items():
+                values[i] = getattr(env.task, name)
+            self.steps[i] = env._steps
+        if only_changed:
+            differs = np.any(incoming != self.batch.state[ids], axis=1)
+            ids, incoming = ids[differs], incoming[differs]
+            if not ids.size:
+                return
+        self.batch.state[ids] = incoming
+        self.batch.forward(ids, stage=ACC)  # derived fields of the new states
+
+    def _step_batched(self, actions):
+        first, frame, n = self.envs[0], self.frame, self.num_envs
+        controller, task = first.controller, first.task
+        clipped = np.clip(actions, -1.0, 1.0)
+        if self.sync_envs:  # environments mirror the batch: adopt what was written into them
+            self._load_rows(np.arange(n), only_changed=True)
+        before = self.batch.state.copy()
+        controls_before = self.controls.copy()
+        trackers_before = {name: values.copy() for name, values in self.trackers.items()}
+
+        index = controller.index
+        kinematics = None
+        if controller.needs_kinematics:
+            tcp = frame.site_xpos[:, index.tcp_site]
+            jac = controller.tcp_jacobian(frame.cdof, frame.subtree_com, tcp)
+            kinematics = (tcp, frame.rot("site_xmat", index.tcp_site), jac)
+        arm = controller.compute(self.controls, frame.qpos[:, index.arm_qpos], kinematics, clipped)
+        self._ctrl[:, index.arm_act] = arm
+        self._ctrl[:, index.gripper_act] = self.controls.gripper_target
+
+        bad = np.zeros(n, bool)
+        try:
+            self.batch.step(nstep=SUBSTEPS, stage=ACC)
+        except SimulationError as err:
+            bad[np.asarray(err.ids, dtype=int)] = True
+        self.steps += 1
+        qvel = frame.qvel
+        bad |= ~(
+            np.all(np.isfinite(frame.qpos), axis=1)
+            & np.all(np.isfinite(qvel), axis=1)
+            & np.all(np.abs(qvel) < first._speed_limits, axis=1)
+        )
+        diverged = np.flatnonzero(bad)
+        if diverged.size:  # roll those back; the others go on untouched
+            self.batch.state[diverged] = before[diverged]
+            self.controls.restore(diverged, controls_before)
+            self.batch.forward(diverged, stage=ACC)
+
+        synced = np.zeros(n, bool)
+
+        def data_of(i):
+            """Environment i's MjData, brought up to this step (once)."""
+            data = self.envs[i].data
+            if not synced[i]:
+                self.batch.get_data(i, data)
+                synced[i] = True
+            data.eq_active[:] = frame.eq_active[i]  # the task may have just changed it
+            return data
+
+        task.after_step_batch(frame, self.trackers, ~bad, data_of)
+        terms = task.reward_batch(frame, self.trackers, clipped)
+        weighted, rewards = weighted_reward(terms, task.weights)
+        core = task.evaluate_batch(frame, data_of)
+        obs = task.observe_batch(frame)
+        for name, values in self.trackers.items():
+            values[diverged] = trackers_before[name][diverged]
+
+        # Environments' own MjData, controller and task follow the batch: all of them (experts,
+        # renderers and snapshots read them), or those the step reports per environment.
+        for i in range(n) if self.sync_envs else diverged:
+            self._sync_env(i, data_of)
+
+        infos: dict = {name: np.array(values) for name, values in core.items()}
+        if first.diagnostics:
+            rows = [env.task.diagnostics(self.model, env.data) for env in self.envs]
+            for name in rows[0]:
+                infos[name] = np.array([row[name] for row in rows], dtype=float)
+        infos["diverged"] = bad.copy()
+        for name, values in weighted.items():
+            infos[f"reward/{name}"] = np.array(values)
+        rewards = np.where(bad, 0.0, rewards)
+        for i in diverged:  # as a single environment reports a rolled-back step
+            env = self.envs[i]
+            obs[i] = env._observe()
+            for name, value in {**env._info_without_reward(), "diverged": True}.items():
+                infos[name][i] = value
+        step_keys = list(infos)
+        for name in step_keys:
+            infos[f"_{name}"] = np.ones(n, bool)
+
+        truncations = (self.steps >= first.max_steps) | bad
+        done = np.flatnonzero(truncations)
+        for i in done:  # SAME_STEP autoreset: report the final step, start the next episode
+            final_info = {name: infos[name][i].item() for name in step_keys}
+            infos = self._add_info(infos, {"final_obs": obs[i].copy(), "final_info": final_info}, i)
+            obs[i], reset_info = self.envs[i].reset()
+            infos = self._add_info(infos, {f"reset/{k}": v for k, v in reset_info.items()}, i)
+        self._load_rows(done)
+        self._obs[:] = obs
+        terminations = np.zeros(n, bool)
+        return obs, rewards, terminations, truncations, infos
+
+    def _sync_env(self, i: int, data_of=None) -> None:
+        env = self.envs[i]
+        if data_of is None:
+            self.batch.get_data(i, env.data)
+        else:
+            data_of(i)
+        self.controls.store(i, env.controller)
+        env.task.store_trackers(self.trackers, i)
+        env._steps = int(self.steps[i])
 
     # -- internals --------------------------------------------------------------------------
     def _seeds(self, seed) -> list[int | None]:

@@ -366,7 +366,9 @@ def train_sacfd(
         )
         torch.save(demos, demo_file)
 
-    venv = wirecraft.make_vec(task, n, threads=cfg.threads, **env_kwargs)
+    venv = wirecraft.make_vec(
+        task, n, threads=cfg.threads, **env_kwargs, diagnostics=False, sync_envs=False
+    )
     env = wrap_env(venv, wrapper="gymnasium", verbose=False)
     obs_space, act_space = env.observation_space, env.action_space
     demo_memory = _memory(len(demos["observations"]), 1, obs_space, act_space, replacement=True)

@@ -101,6 +101,9 @@ class Run:
         self.save()
 
 
+TRAINING_VEC_OPTIONS = {"diagnostics": False, "sync_envs": False}
+
+
 def _new_run(algorithm: str, task: str, env_kwargs: dict, cfg, run_dir: Path) -> Run:
     from wirecraft.tasks import TASKS
 
@@ -234,7 +237,11 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
         train_cfg = ppo.runner_config(
             cfg, actor_groups=("features",), critic_groups=("state",), actor_normalization=False
         )
-    venv = wirecraft.make_vec(task, cfg.num_envs, threads=cfg.threads, **env_kwargs)
+    # Training reads observations, rewards and success flags only: no per-environment force
+    # diagnostics, no per-environment copies of the batch (see envs/vector.py).
+    venv = wirecraft.make_vec(
+        task, cfg.num_envs, threads=cfg.threads, **env_kwargs, **TRAINING_VEC_OPTIONS
+    )
     # a resumed run starts new episodes rather than replaying the first ones
     env = ppo.make_vec_env_adapter(
         venv,

@@ -17,6 +17,17 @@ its controller, and calls the task's hooks, whose names say when they run:
 
 Task state kept across steps (e.g. a high-water mark) goes through ``get_state``/``set_state``
 so that environment snapshots reproduce episodes exactly.
+
+Batched tasks (``batched = True``, e.g. insertion) compute their observation, reward, latch
+logic and success on a ``Frame`` of N simulations (``observe_batch``, ``reward_batch``,
+``after_step_batch``, ``evaluate_batch``), with their step-to-step trackers as (N,) arrays
+named in ``trackers``.  The per-simulation hooks above then run the same code with N = 1, and
+the vector environment runs it once for all its environments.  Their contact flags come from
+MuJoCo contact sensors (``add_contact_sensors``), which arrive in ``sensordata``.
+
+``evaluate(model, data, diagnostics=True)``: ``diagnostics=False`` leaves out the force and
+cable diagnostics (``diagnostics``), which walk the contact list of every simulation; RL
+training does not read them.
 """
 
 from __future__ import annotations
@@ -38,6 +49,7 @@ from wirecraft.sensors import (
     peak_contact_force,
     touching,
 )
+from wirecraft.tasks.frame import Frame
 
 TASKS: Registry[type[Task]] = Registry("task")
 
@@ -48,6 +60,11 @@ class Task(ABC):
     default_control: ClassVar[str]
     default_weights: ClassVar[dict[str, float]]
     settle_seconds: ClassVar[float] = 1.0
+    batched: ClassVar[bool] = False
+    # Batched tasks: step-to-step trackers (attribute name -> initial value), kept per
+    # environment as attributes and, in a vector environment, as (N,) arrays.
+    trackers: ClassVar[dict[str, float | bool]] = {}
+    held_body: ClassVar[str | None] = None  # the body the pads hold (its contact sensors)
 
     def __init__(self, weights: dict[str, float] | None = None) -> None:
         self.weights = dict(self.default_weights)
@@ -67,10 +84,43 @@ class Task(ABC):
     @abstractmethod
     def build_scene(self, spec: mujoco.MjSpec, wire_config: WireConfig) -> None: ...
 
+    def add_contact_sensors(self, spec: mujoco.MjSpec, robot: RobotHandle) -> None:
+        """Contact sensors (``found``: the number of contacts) for the flags batched tasks
+        read: each pad against ``held_body``, and each top moving part of the robot (its
+        subtree) against the table."""
+        contact = mujoco.mjtSensor.mjSENS_CONTACT
+        if self.held_body is not None:
+            for k, pad in enumerate(robot.pad_geom_names):
+                spec.add_sensor(
+                    name=f"touch_pad{k}",
+                    type=contact,
+                    objtype=mujoco.mjtObj.mjOBJ_GEOM,
+                    objname=pad,
+                    reftype=mujoco.mjtObj.mjOBJ_BODY,
+                    refname=self.held_body,
+                    intprm=[1, 0, 1],  # data: found; reduce: none; one slot
+                )
+        fixed = {robot.base_site, f"{robot.prefix}chain_base"}
+        tops = [
+            b.name
+            for b in spec.bodies
+            if b.parent is not None and b.parent.name in fixed and b.name not in fixed
+        ]
+        for k, name in enumerate(tops):
+            spec.add_sensor(
+                name=f"touch_table{k}",
+                type=contact,
+                objtype=mujoco.mjtObj.mjOBJ_XBODY,  # the body's subtree
+                objname=name,
+                reftype=mujoco.mjtObj.mjOBJ_GEOM,
+                refname="table",
+                intprm=[1, 0, 1],
+            )
+
     def bind(self, model: mujoco.MjModel, robot: RobotHandle) -> None:
         """Look up, once, what every task reads: the robot's base, TCP and pads, the cable."""
         self.robot = robot
-        index = robot.index(model)
+        index = self.robot_index = robot.index(model)
         self.base_site = index.base_site
         self.tcp_site = index.tcp_site
         self.pads = [geom_ids(model, [name]) for name in robot.pad_geom_names]
@@ -85,6 +135,14 @@ class Task(ABC):
         self.robot_geoms = body_geom_ids(model, moving)
         self.table_geom = geom_ids(model, ["table"])
         self.assembly.bind(model)
+        sensors = {model.sensor(k).name: model.sensor_adr[k] for k in range(model.nsensor)}
+        self.pad_sensors = np.array(
+            [sensors[f"touch_pad{k}"] for k in range(len(self.pads)) if f"touch_pad{k}" in sensors],
+            dtype=int,
+        )
+        self.table_sensors = np.array(
+            [adr for name, adr in sensors.items() if name.startswith("touch_table")], dtype=int
+        )
 
     @abstractmethod
     def initialize_episode(self, model, data, rng: np.random.Generator) -> None: ...
@@ -105,7 +163,11 @@ class Task(ABC):
     def reward_terms(self, model, data, action: np.ndarray) -> dict[str, float]: ...
 
     @abstractmethod
-    def evaluate(self, model, data) -> dict[str, float | bool]: ...
+    def evaluate(self, model, data, diagnostics: bool = True) -> dict[str, float | bool]: ...
+
+    def diagnostics(self, model, data) -> dict[str, float]:
+        """Force and cable diagnostics for ``info`` (per simulation: they walk its contacts)."""
+        return self.cable_diagnostics(model, data)
 
     def get_state(self) -> dict:
         return {}
@@ -185,6 +247,96 @@ class Task(ABC):
         return touching(model, data, self.robot_geoms, self.table_geom)
 
 
-def shaped(distance: float, scale: float) -> float:
-    """1 at distance 0, falling smoothly to 0 over a few ``scale``s."""
-    return float(1.0 - np.tanh(distance / scale))
+class BatchedTask(Task):
+    """A task whose observation, reward, latch logic and success run on a ``Frame`` of N
+    simulations; the per-simulation hooks run the same code with N = 1.  Subclasses implement
+    ``observe_batch``, ``reward_batch``, ``evaluate_batch`` and, if they change simulation
+    flags after a step, ``after_step_batch``; their trackers are attributes named in
+    ``trackers``."""
+
+    batched = True
+
+    def observe_batch(self, frame: Frame) -> np.ndarray:
+        """(N, state_dim) privileged states."""
+        raise NotImplementedError
+
+    def reward_batch(self, frame: Frame, trackers: dict, actions: np.ndarray) -> dict:
+        """Named, unweighted reward terms, each (N,); may update ``trackers`` (N,) arrays."""
+        raise NotImplementedError
+
+    def evaluate_batch(self, frame: Frame, data_of) -> dict[str, np.ndarray]:
+        """Success flags and cheap diagnostics, each (N,).  ``data_of(i)`` gives simulation
+        i's ``MjData`` (current) where a quantity needs it."""
+        raise NotImplementedError
+
+    def after_step_batch(self, frame: Frame, trackers: dict, rows: np.ndarray, data_of) -> None:
+        """``after_step`` for the simulations where ``rows`` (N,) is True (not diverged)."""
+        del frame, trackers, rows, data_of
+
+    # -- the batch code as per-simulation hooks (N = 1) -------------------------------------
+    def tracker_arrays(self) -> dict[str, np.ndarray]:
+        return {name: np.array([getattr(self, name)]) for name in self.trackers}
+
+    def store_trackers(self, arrays: dict[str, np.ndarray], row: int = 0) -> None:
+        for name, values in arrays.items():
+            setattr(self, name, values[row].item())
+
+    def reset_trackers(self) -> None:
+        for name, value in self.trackers.items():
+            setattr(self, name, value)
+
+    def privileged_state(self, model, data) -> np.ndarray:
+        return self.observe_batch(Frame.of_data(data))[0]
+
+    def after_step(self, model, data) -> None:
+        trackers = self.tracker_arrays()
+        self.after_step_batch(Frame.of_data(data), trackers, np.ones(1, bool), lambda i: data)
+        self.store_trackers(trackers)
+
+    def reward_terms(self, model, data, action: np.ndarray) -> dict[str, float]:
+        trackers = self.tracker_arrays()
+        actions = np.asarray(action, dtype=float)[None]
+        terms = self.reward_batch(Frame.of_data(data), trackers, actions)
+        self.store_trackers(trackers)
+        return {name: float(values[0]) for name, values in terms.items()}
+
+    def evaluate(self, model, data, diagnostics: bool = True) -> dict[str, float | bool]:
+        core = self.evaluate_batch(Frame.of_data(data), lambda i: data)
+        info = {name: values[0].item() for name, values in core.items()}
+        if diagnostics:
+            info.update(self.diagnostics(model, data))
+        return info
+
+    # -- contact flags from the contact sensors ---------------------------------------------
+    def pads_touching(self, frame: Frame) -> np.ndarray:
+        """(N, 2) whether each pad touches ``held_body``."""
+        return frame.sensordata[:, self.pad_sensors] > 0
+
+    def table_collision(self, frame: Frame) -> np.ndarray:
+        """(N,) whether any moving part of the robot touches the table."""
+        return np.any(frame.sensordata[:, self.table_sensors] > 0, axis=1)
+
+    def to_base_batch(self, frame: Frame, points: np.ndarray) -> np.ndarray:
+        """World points (N, 3) in the robot base frame."""
+        origin = frame.site_xpos[:, self.base_site]
+        rot = frame.rot("site_xmat", self.base_site)
+        return ((points - origin)[:, None, :] @ rot)[:, 0, :]
+
+    def rot_to_base_batch(self, frame: Frame, rots: np.ndarray) -> np.ndarray:
+        return np.swapaxes(frame.rot("site_xmat", self.base_site), 1, 2) @ rots
+
+
+def weighted_reward(terms: dict, weights: dict[str, float]) -> tuple[dict, np.ndarray]:
+    """Each term times its weight, and their sum (N,), added in the terms' order (the same
+    operations for one environment and for many)."""
+    weighted = {name: weights[name] * np.asarray(value, float) for name, value in terms.items()}
+    total = np.zeros(np.shape(next(iter(weighted.values()))))
+    for value in weighted.values():
+        total = total + value
+    return weighted, total
+
+
+def shaped(distance, scale: float):
+    """1 at distance 0, falling smoothly to 0 over a few ``scale``s (scalar or array)."""
+    value = 1.0 - np.tanh(np.asarray(distance, float) / scale)
+    return float(value) if value.ndim == 0 else value

@@ -49,10 +49,12 @@ import numpy as np
 from wirecraft import physics
 from wirecraft.assets.connectors import CONNECTORS, add_port, add_retention, make_connector
 from wirecraft.assets.fixtures import PortStandConfig
+from wirecraft.assets.robots.kinematics import mats_to_quats
 from wirecraft.assets.shapes import add_to_body, quat_about
-from wirecraft.sensors import body_geom_ids, contact_normal_force, mat_to_quat
+from wirecraft.sensors import body_geom_ids, contact_normal_force
 from wirecraft.tasks.assembly import WireAssembly
-from wirecraft.tasks.base import TASKS, Task, shaped
+from wirecraft.tasks.base import TASKS, BatchedTask, shaped
+from wirecraft.tasks.frame import Frame, dots, norms
 
 INSERTION_AXIS = np.array([0.0, 1.0, 0.0])  # world direction the plug moves to seat
 PORT_Y = 0.22  # m, socket mouth along the insertion axis
@@ -81,7 +83,7 @@ LATCH_AXIS_TOLERANCE = math.radians(15.0)
 
 
 @TASKS.register("insertion")
-class InsertionTask(Task):
+class InsertionTask(BatchedTask):
     name = "insertion"
     gym_id = "WireCraft/ConnectorInsertion-v0"
     default_control = "cartesian"
@@ -98,13 +100,14 @@ class InsertionTask(Task):
         "action": -0.1,
         "collision": -10.0,
     }
+    trackers = {"depth_high_water": 0.0, "retention_armed": True}
+    held_body = "plug"
 
     def __init__(self, connector: str = "ethernet", clearance: float = 0.003, weights=None):
         super().__init__(weights)
         CONNECTORS.get(connector)  # ValueError listing the valid ones
         self.connector = make_connector(connector, clearance)
-        self.depth_high_water = 0.0
-        self.retention_armed = True
+        self.reset_trackers()
 
     @property
     def instruction(self) -> str:
@@ -177,8 +180,7 @@ class InsertionTask(Task):
         )
         self.sampled = {"port": port, "plug": plug.copy(), "yaw": yaw, "pitch": pitch, "roll": roll}
         self.sampled["placed_plug"] = self.assembly.place(model, data, plug, axis, roll)
-        self.depth_high_water = 0.0
-        self.retention_armed = True
+        self.reset_trackers()
         data.eq_active[self.retention_eqs] = 0
 
     # -- geometry ---------------------------------------------------------------------------
@@ -189,23 +191,33 @@ class InsertionTask(Task):
     def seating_errors(self, data) -> dict[str, float]:
         """Axial error (m to go along the socket axis), lateral error (m off the axis), depth
         (m past the mouth), roll error (rad, modulo the connector's symmetry) and axis error."""
-        return self.memo(data, "seating_errors", lambda: self._seating_errors(data))
-
-    def _seating_errors(self, data) -> dict[str, float]:
-        entry, port_rot = self._port_frame(data)
-        axis = port_rot[:, 0]
-        tip = data.site_xpos[self.assembly.tip_site]
-        depth = float(np.dot(tip - entry, axis))
-        lateral = float(np.linalg.norm((tip - entry) - depth * axis))
-        _, plug_rot = self.assembly.plug_pose(data)
-        axis_error = float(np.arccos(np.clip(np.dot(plug_rot[:, 0], axis), -1.0, 1.0)))
-        # Roll: angle of the plug's up (z) axis about the socket axis, against the socket's.
-        up = plug_rot[:, 2] - np.dot(plug_rot[:, 2], axis) * axis
-        roll = math.atan2(
-            float(np.dot(np.cross(port_rot[:, 2], up), axis)), float(np.dot(port_rot[:, 2], up))
+        return self.memo(
+            data,
+            "seating_errors",
+            lambda: {
+                k: float(v[0]) for k, v in self.seating_errors_batch(Frame.of_data(data)).items()
+            },
         )
+
+    def seating_errors_batch(self, frame: Frame) -> dict[str, np.ndarray]:
+        """``seating_errors`` of N simulations, each (N,)."""
+        entry = frame.site_xpos[:, self.entry_site]
+        port_rot = frame.rot("xmat", self.port_id)
+        axis = port_rot[:, :, 0]
+        rel = frame.site_xpos[:, self.assembly.tip_site] - entry
+        depth = dots(rel, axis)
+        lateral = norms(rel - depth[:, None] * axis)
+        plug_rot = frame.rot("xmat", self.assembly.plug_id)
+        axis_error = np.arccos(np.clip(dots(plug_rot[:, :, 0], axis), -1.0, 1.0))
+        # Roll: angle of the plug's up (z) axis about the socket axis, against the socket's.
+        up = plug_rot[:, :, 2] - dots(plug_rot[:, :, 2], axis)[:, None] * axis
+        socket_up = port_rot[:, :, 2]
+        roll = np.arctan2(dots(np.cross(socket_up, up), axis), dots(socket_up, up))
         n = self.connector.symmetry
-        roll_error = 0.0 if n == 0 else abs((roll + math.pi / n) % (2 * math.pi / n) - math.pi / n)
+        if n == 0:
+            roll_error = np.zeros_like(roll)
+        else:
+            roll_error = np.abs(np.mod(roll + math.pi / n, 2 * math.pi / n) - math.pi / n)
         return {
             "depth": depth,
             "roll": roll,
@@ -255,131 +267,152 @@ class InsertionTask(Task):
         wire = contact_normal_force(model, data, self.assembly.wire_contacts, self.port_contacts)
         return wire + self.plug_port_force(model, data)
 
-    def _retention_orientation(self, err) -> int | None:
-        """The seating orientation the plug is in (index into ``seated_rolls``), or None."""
-        if err["axis_error"] > LATCH_AXIS_TOLERANCE:
-            return None
-        for k, roll in enumerate(self.connector.seated_rolls()):
-            off = abs((err["roll"] - roll + math.pi) % (2 * math.pi) - math.pi)
-            if off < LATCH_ROLL_TOLERANCE:
-                return k
-        return None
+    def _retention_orientations(self, err) -> np.ndarray:
+        """(N,) the seating orientation each plug is in (index into ``seated_rolls``), -1 for
+        none."""
+        found = np.full(err["roll"].shape, -1)
+        aligned = err["axis_error"] <= LATCH_AXIS_TOLERANCE
+        for k, roll in reversed(list(enumerate(self.connector.seated_rolls()))):
+            off = np.abs(np.mod(err["roll"] - roll + math.pi, 2 * math.pi) - math.pi)
+            found = np.where(aligned & (off < LATCH_ROLL_TOLERANCE), k, found)
+        return found
 
-    def after_step(self, model, data) -> None:
+    def after_step_batch(self, frame, trackers, rows, data_of) -> None:
         """Engage or release the retention weld (see the module docstring)."""
         if not self.retention_eqs.size:
             return
-        err = self.seating_errors(data)
+        err = self.seating_errors_batch(frame)
         seated = self._inserted(err)
-        engaged = self.engaged_retention(data)
-        if engaged is not None:
-            if self.retention_holding_force(model, data) > self.connector.retention_force:
-                data.eq_active[self.retention_eqs[engaged]] = 0
-                self.retention_armed = False
-            return
-        if not seated:
-            self.retention_armed = True
-            return
-        k = self._retention_orientation(err) if self.retention_armed else None
-        if k is not None:
-            data.eq_active[self.retention_eqs[k]] = 1
+        active = frame.eq_active[:, self.retention_eqs] != 0
+        engaged = active.any(axis=1)
+        armed = trackers["retention_armed"]
+        for i in np.flatnonzero(rows & engaged):
+            data = data_of(i)
+            if self.retention_holding_force(None, data) > self.connector.retention_force:
+                k = int(np.flatnonzero(active[i])[0])
+                frame.eq_active[i, self.retention_eqs[k]] = 0
+                armed[i] = False
+        armed[rows & ~engaged & ~seated] = True
+        candidates = rows & ~engaged & seated & armed
+        if candidates.any():
+            orientation = self._retention_orientations(err)
+            for i in np.flatnonzero(candidates & (orientation >= 0)):
+                frame.eq_active[i, self.retention_eqs[orientation[i]]] = 1
 
     def held(self, model, data) -> bool:
-        return all(self.pad_contacts(model, data, self.assembly.plug_contacts))
+        return bool(self.pads_touching(Frame.of_data(data)).all())
 
     # -- observation ------------------------------------------------------------------------
-    def privileged_state(self, model, data) -> np.ndarray:
-        robot = self.robot
-        tcp = self.to_base(data, data.site_xpos[self.tcp_site])
-        tcp_quat = mat_to_quat(self.rot_to_base(data, data.site_xmat[self.tcp_site].reshape(3, 3)))
-        plug_pos, plug_rot = self.assembly.plug_pose(data)
-        entry = data.site_xpos[self.entry_site]
-        seated = data.site_xpos[self.seated_site]
-        tip = data.site_xpos[self.assembly.tip_site]
-        err = self.seating_errors(data)
-        gate = float(
-            err["roll_error"] < ROLL_GATE
-            and err["lateral"] < self.connector.clearance + LATERAL_TOLERANCE
-            and err["depth"] > 0
-        )
+    def observe_batch(self, frame: Frame) -> np.ndarray:
+        index = self.robot_index
+        entry = frame.site_xpos[:, self.entry_site]
+        seated = frame.site_xpos[:, self.seated_site]
+        tip = frame.site_xpos[:, self.assembly.tip_site]
+        tcp_rot = self.rot_to_base_batch(frame, frame.rot("site_xmat", self.tcp_site))
+        plug_rot = self.rot_to_base_batch(frame, frame.rot("xmat", self.assembly.plug_id))
+        base_rot = frame.rot("site_xmat", self.base_site)
+        err = self.seating_errors_batch(frame)
         return np.concatenate(
             [
-                robot.arm_qpos(model, data),
-                [robot.gripper_opening(model, data)],
-                robot.arm_qvel(model, data),
-                [robot.gripper_velocity(model, data)],
-                tcp,
-                tcp_quat,
-                np.array(self.pad_contacts(model, data, self.assembly.plug_contacts), dtype=float),
-                (seated - tip) @ data.site_xmat[self.base_site].reshape(3, 3),
-                self.to_base(data, plug_pos),
-                mat_to_quat(self.rot_to_base(data, plug_rot)),
-                self.to_base(data, entry),
-                self.to_base(data, seated),
-                [gate, err["axial"], err["lateral"]],
-            ]
+                frame.qpos[:, index.arm_qpos],
+                np.sum(frame.qpos[:, index.finger_qpos], axis=1, keepdims=True),
+                frame.qvel[:, index.arm_dof],
+                np.sum(frame.qvel[:, index.finger_dof], axis=1, keepdims=True),
+                self.to_base_batch(frame, frame.site_xpos[:, self.tcp_site]),
+                mats_to_quats(tcp_rot),
+                self.pads_touching(frame).astype(float),
+                ((seated - tip)[:, None, :] @ base_rot)[:, 0, :],
+                self.to_base_batch(frame, frame.xpos[:, self.assembly.plug_id]),
+                mats_to_quats(plug_rot),
+                self.to_base_batch(frame, entry),
+                self.to_base_batch(frame, seated),
+                self._gate(err)[:, None].astype(float),
+                err["axial"][:, None],
+                err["lateral"][:, None],
+            ],
+            axis=1,
+        )
+
+    def _gate(self, err) -> np.ndarray:
+        """(N,) whether the insertion depth counts: roll aligned, tip on the axis, past the
+        mouth."""
+        return (
+            (err["roll_error"] < ROLL_GATE)
+            & (err["lateral"] < self.connector.clearance + LATERAL_TOLERANCE)
+            & (err["depth"] > 0)
         )
 
     # -- reward -----------------------------------------------------------------------------
-    def reward_terms(self, model, data, action) -> dict[str, float]:
-        tcp = data.site_xpos[self.tcp_site]
-        grasp_point = data.site_xpos[self.assembly.grasp_site]
-        held = self.held(model, data)
-        entry, port_rot = self._port_frame(data)
-        axis = port_rot[:, 0]
-        tip = data.site_xpos[self.assembly.tip_site]
-        tail = data.site_xpos[self.assembly.grasp_site]
-        err = self.seating_errors(data)
+    def reward_batch(self, frame, trackers, actions) -> dict[str, np.ndarray]:
+        tcp = frame.site_xpos[:, self.tcp_site]
+        tail = frame.site_xpos[:, self.assembly.grasp_site]
+        held = self.pads_touching(frame).all(axis=1).astype(float)
+        entry = frame.site_xpos[:, self.entry_site]
+        axis = frame.rot("xmat", self.port_id)[:, :, 0]
+        tip = frame.site_xpos[:, self.assembly.tip_site]
+        err = self.seating_errors_batch(frame)
 
         def off_axis(point):
             rel = point - entry
-            return float(np.linalg.norm(rel - np.dot(rel, axis) * axis))
+            return norms(rel - dots(rel, axis)[:, None] * axis)
 
         pre_insert = entry - PRE_INSERT * axis
         depth_fraction = np.clip(err["depth"] / self.connector.cavity_depth, 0.0, 1.0)
-        if err["roll_error"] > ROLL_GATE:
-            depth_fraction = 0.0
-        ratchet = max(0.0, depth_fraction - self.depth_high_water)
-        self.depth_high_water = max(self.depth_high_water, depth_fraction)
-        tcp_z = data.site_xmat[self.tcp_site].reshape(3, 3)[:, 2]
+        depth_fraction = np.where(err["roll_error"] > ROLL_GATE, 0.0, depth_fraction)
+        high_water = trackers["depth_high_water"]
+        ratchet = np.maximum(0.0, depth_fraction - high_water)
+        trackers["depth_high_water"] = np.maximum(high_water, depth_fraction)
+        tcp_z = frame.rot("site_xmat", self.tcp_site)[:, :, 2]
         return {
-            "reach": shaped(float(np.linalg.norm(tcp - grasp_point)), 0.1),
-            "grasp": float(held),
-            "bring": float(held) * shaped(float(np.linalg.norm(tip - pre_insert)), 0.1),
-            "align": float(held) * shaped(off_axis(tip) + off_axis(tail), 0.02),
+            "reach": shaped(norms(tcp - tail), 0.1),
+            "grasp": held,
+            "bring": held * shaped(norms(tip - pre_insert), 0.1),
+            "align": held * shaped(off_axis(tip) + off_axis(tail), 0.02),
             "insert_depth": ratchet,
-            "port_orientation": float(held) * shaped(err["axis_error"], 0.2),
-            "roll": float(held) * shaped(err["roll_error"], 0.2),
-            "ee_orientation": shaped(float(np.arccos(np.clip(-tcp_z[2], -1, 1))), 0.5),
-            "seated": float(self._inserted(err)),
-            "action": float(np.sum(np.square(action))),
-            "collision": float(self.gripper_collision(model, data)),
+            "port_orientation": held * shaped(err["axis_error"], 0.2),
+            "roll": held * shaped(err["roll_error"], 0.2),
+            "ee_orientation": shaped(np.arccos(np.clip(-tcp_z[:, 2], -1, 1)), 0.5),
+            "seated": self._inserted(err).astype(float),
+            "action": np.sum(np.square(actions), axis=1),
+            "collision": self.table_collision(frame).astype(float),
         }
 
-    def _inserted(self, err) -> bool:
-        return (
-            err["axial"] < AXIAL_TOLERANCE
-            and err["lateral"] < self.connector.clearance + LATERAL_TOLERANCE
+    def _inserted(self, err) -> np.ndarray:
+        return (err["axial"] < AXIAL_TOLERANCE) & (
+            err["lateral"] < self.connector.clearance + LATERAL_TOLERANCE
         )
 
     # -- evaluation -------------------------------------------------------------------------
-    def evaluate(self, model, data) -> dict[str, float | bool]:
-        err = self.seating_errors(data)
+    def evaluate_batch(self, frame, data_of) -> dict[str, np.ndarray]:
+        err = self.seating_errors_batch(frame)
         inserted = self._inserted(err)
-        tip = data.site_xpos[self.assembly.tip_site]
-        near = float(np.linalg.norm(tip - data.site_xpos[self.entry_site])) < REACH_DISTANCE
+        tip = frame.site_xpos[:, self.assembly.tip_site]
+        near = norms(tip - frame.site_xpos[:, self.entry_site]) < REACH_DISTANCE
+        held = self.pads_touching(frame).all(axis=1)
+        latched = (
+            np.any(frame.eq_active[:, self.retention_eqs] != 0, axis=1)
+            if self.retention_eqs.size
+            else np.zeros(frame.size, bool)
+        )
+        latch_force = np.zeros(frame.size)
+        for i in np.flatnonzero(latched):
+            latch_force[i] = self.retention_holding_force(None, data_of(i))
         return {
             "success": inserted,
-            "reach_success": bool(near and (self.held(model, data) or inserted)),
+            "reach_success": near & (held | inserted),
             "insert_success": inserted,
             "insertion_depth": err["depth"],
             "lateral_error": err["lateral"],
             "yaw_error": err["axis_error"],
             "roll_error": err["roll_error"],
+            "latched": latched,
+            "latch_force": latch_force,
+        }
+
+    def diagnostics(self, model, data) -> dict[str, float]:
+        return {
             "insertion_force": self.plug_port_force(model, data),
             "grasp_force": self.grasp_force(model, data, self.assembly.plug_contacts),
-            "latched": self.engaged_retention(data) is not None,
-            "latch_force": self.retention_holding_force(model, data),
             **self.cable_diagnostics(model, data),
         }
 

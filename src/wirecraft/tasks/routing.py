@@ -246,11 +246,16 @@ class RoutingTask(Task):
             "collision": float(self.gripper_collision(model, data)),
         }
 
-    def evaluate(self, model, data) -> dict[str, float | bool]:
+    def evaluate(self, model, data, diagnostics: bool = True) -> dict[str, float | bool]:
         routed = self.routed(model, data)
         return {
             "success": all(routed),
             "clips_routed": int(sum(routed)),
+            **(self.diagnostics(model, data) if diagnostics else {}),
+        }
+
+    def diagnostics(self, model, data) -> dict[str, float]:
+        return {
             "grasp_force": self.grasp_force(model, data, self.assembly.wire_contacts),
             **self.cable_diagnostics(model, data),
         }

@@ -228,11 +228,16 @@ class SeatingTask(Task):
             "collision": float(self.gripper_collision(model, data)),
         }
 
-    def evaluate(self, model, data) -> dict[str, float | bool]:
+    def evaluate(self, model, data, diagnostics: bool = True) -> dict[str, float | bool]:
         fraction = self.fraction_inside(model, data)
         return {
             "success": fraction >= SUCCESS_FRACTION,
             "fraction_inside": fraction,
+            **(self.diagnostics(model, data) if diagnostics else {}),
+        }
+
+    def diagnostics(self, model, data) -> dict[str, float]:
+        return {
             "grasp_force": self.grasp_force(model, data, self.assembly.plug_contacts),
             **self.cable_diagnostics(model, data),
         }

@@ -153,3 +153,104 @@ def solve_ik(
         jac = site_jacobian(model, data, site_id, dof_adr)
         data.qpos[qpos_adr] = q + dls_limited(jac, err, damping, q, lower, upper)
     return data.qpos[qpos_adr].copy(), err_norm
+
+
+# -- batched forms: a leading axis of N environments ------------------------------------------
+# The vector environment runs these on (N, ...) arrays and a single environment on N = 1, so
+# both compute every step with the same floating-point operations (bit-identical episodes).
+def mats_to_quats(mats: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions (w, x, y, z, w >= 0 not enforced) of (N, 3, 3) rotations, by the
+    branch on the largest diagonal term (as ``mju_mat2Quat``)."""
+    m = np.asarray(mats, dtype=float).reshape(-1, 9)
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m.T
+    trace = m00 + m11 + m22
+    quat = np.empty((m.shape[0], 4))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        branches = (
+            (trace > 0, 0, 1 + trace, (m21 - m12, m02 - m20, m10 - m01)),
+            ((m00 > m11) & (m00 > m22), 1, 1 + m00 - m11 - m22, (m21 - m12, m01 + m10, m02 + m20)),
+            (m11 > m22, 2, 1 + m11 - m00 - m22, (m02 - m20, m01 + m10, m12 + m21)),
+            (np.ones_like(trace, bool), 3, 1 + m22 - m00 - m11, (m10 - m01, m02 + m20, m12 + m21)),
+        )
+        taken = np.zeros(m.shape[0], bool)
+        for condition, main, radicand, others in branches:
+            rows = condition & ~taken
+            taken |= rows
+            if not rows.any():
+                continue
+            big = 0.5 * np.sqrt(radicand[rows])
+            rest = [k for k in range(4) if k != main]
+            quat[rows, main] = big
+            for k, value in zip(rest, others, strict=True):
+                quat[rows, k] = value[rows] / (4 * big)
+    return quat / np.linalg.norm(quat, axis=1, keepdims=True)
+
+
+def axis_angle_to_mats(rotvecs: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices of (N, 3) rotation vectors (axis * angle, radians)."""
+    rotvecs = np.asarray(rotvecs, dtype=float)
+    angle = np.linalg.norm(rotvecs, axis=1)
+    still = angle < 1e-12
+    k = rotvecs / np.where(still, 1.0, angle)[:, None]
+    zero = np.zeros_like(angle)
+    kx = np.stack(
+        [
+            np.stack([zero, -k[:, 2], k[:, 1]], axis=1),
+            np.stack([k[:, 2], zero, -k[:, 0]], axis=1),
+            np.stack([-k[:, 1], k[:, 0], zero], axis=1),
+        ],
+        axis=1,
+    )
+    mats = (
+        np.eye(3)
+        + np.sin(angle)[:, None, None] * kx
+        + (1.0 - np.cos(angle))[:, None, None] * (kx @ kx)
+    )
+    mats[still] = np.eye(3)
+    return mats
+
+
+def rotation_errors(targets: np.ndarray, currents: np.ndarray) -> np.ndarray:
+    """(N, 3) axis * angle of the rotations taking ``currents`` to ``targets`` (N, 3, 3)."""
+    quat = mats_to_quats(targets @ np.swapaxes(currents, 1, 2))
+    quat = np.where(quat[:, :1] < 0.0, -quat, quat)
+    vec = quat[:, 1:]
+    norm = np.linalg.norm(vec, axis=1)
+    small = norm < 1e-12
+    scale = 2.0 * np.arctan2(norm, quat[:, 0]) / np.where(small, 1.0, norm)
+    return np.where(small[:, None], 0.0, vec * scale[:, None])
+
+
+def dls_batch(jac: np.ndarray, err: np.ndarray, damping: float) -> np.ndarray:
+    """(N, n) damped least squares per environment: jac (N, 6, n), err (N, 6)."""
+    rows = jac.shape[1]
+    gram = jac @ np.swapaxes(jac, 1, 2) + damping**2 * np.eye(rows)
+    return (np.swapaxes(jac, 1, 2) @ np.linalg.solve(gram, err[:, :, None]))[:, :, 0]
+
+
+def dls_limited_batch(jac, err, damping: float, q, lower, upper) -> np.ndarray:
+    """``dls_limited`` per environment (N, n): only environments where a joint would cross a
+    limit take the second, per-environment solve."""
+    dq = dls_batch(jac, err, damping)
+    over = (q + dq < lower) | (q + dq > upper)
+    for r in np.flatnonzero(over.any(axis=1)):
+        fixed = np.clip(q[r] + dq[r], lower, upper) - q[r]
+        row = np.zeros_like(dq[r])
+        row[over[r]] = fixed[over[r]]
+        free = ~over[r]
+        if free.any():
+            residual = err[r] - jac[r][:, over[r]] @ row[over[r]]
+            row[free] = dls_batch(jac[r][None][:, :, free], residual[None], damping)[0]
+        dq[r] = np.clip(q[r] + row, lower, upper) - q[r]
+    return dq
+
+
+def chain_jacobian(cdof, subtree_com, point, root: int, dofs) -> np.ndarray:
+    """(N, 6, len(dofs)) translational + rotational Jacobian of world points (N, 3) over DoFs
+    that are all ancestors of the point's body, from MuJoCo's ``cdof`` (N, nv, 6) and
+    ``subtree_com`` (N, nbody, 3) (``mj_jac``'s formula; ``root`` is the body's root)."""
+    offset = point - subtree_com[:, root]
+    motion = cdof[:, dofs]
+    angular = motion[:, :, :3]
+    linear = motion[:, :, 3:] + np.cross(angular, offset[:, None, :])
+    return np.concatenate([linear, angular], axis=2).transpose(0, 2, 1)

@@ -1,0 +1,192 @@
+"""The batched step: kernels against their per-environment forms and MuJoCo, contact sensors
+against the contact list, and the batched vector step against the per-environment one."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+import wirecraft
+from wirecraft.assets.robots import kinematics as K
+from wirecraft.experts import expert_class
+from wirecraft.tasks.frame import Frame
+
+RNG = np.random.default_rng(0)
+
+
+def random_rotations(n):
+    return np.stack([K.axis_angle_to_mat(v) for v in RNG.normal(size=(n, 3)) * 1.5])
+
+
+def test_batched_rotation_helpers_match_mujoco_and_the_scalar_forms():
+    rots = random_rotations(64)
+    # Rotations by ~pi exercise every branch of the quaternion extraction.
+    rots = np.concatenate([rots, [K.axis_angle_to_mat(np.array(a) * np.pi) for a in np.eye(3)]])
+    quats = K.mats_to_quats(rots)
+    for rot, quat in zip(rots, quats, strict=True):
+        reference = K.mat_to_quat(rot)  # mju_mat2Quat
+        assert np.allclose(quat, reference, atol=1e-12) or np.allclose(quat, -reference, atol=1e-12)
+    vecs = RNG.normal(size=(32, 3))
+    vecs[0] = 0.0  # no rotation
+    mats = K.axis_angle_to_mats(vecs)
+    for vec, mat in zip(vecs, mats, strict=True):
+        np.testing.assert_allclose(mat, K.axis_angle_to_mat(vec), atol=1e-14)
+    other = random_rotations(len(rots))
+    errors = K.rotation_errors(rots, other)
+    for target, current, error in zip(rots, other, errors, strict=True):
+        np.testing.assert_allclose(error, K.rotation_error(target, current), atol=1e-12)
+
+
+def test_batched_damped_least_squares_matches_the_scalar_solver_at_joint_limits():
+    jac = RNG.normal(size=(16, 6, 7))
+    err = RNG.normal(size=(16, 6)) * 0.05
+    lower, upper = -np.ones(7), np.ones(7)
+    q = RNG.uniform(-1.0, 1.0, (16, 7))
+    q[:8, 0] = 0.999  # half the rows start against a limit: the second solve runs
+    batch = K.dls_limited_batch(jac, err, 0.02, q, lower, upper)
+    limited = 0
+    for r in range(16):
+        single = K.dls_limited(jac[r], err[r], 0.02, q[r], lower, upper)
+        np.testing.assert_allclose(batch[r], single, atol=1e-12)
+        assert np.all(q[r] + batch[r] <= upper + 1e-12) and np.all(q[r] + batch[r] >= lower - 1e-12)
+        limited += np.any(np.isclose(q[r] + batch[r], upper) | np.isclose(q[r] + batch[r], lower))
+    assert limited > 0
+
+
+@pytest.mark.parametrize("robot", ["ur5", "panda"])
+def test_the_numpy_jacobian_is_mujocos(robot):
+    env = wirecraft.make("insertion", robot=robot).unwrapped
+    env.reset(seed=3)
+    model, data, ctl = env.model, env.data, env.controller
+    for _ in range(5):
+        env.step(RNG.uniform(-1, 1, env.action_space.shape))
+        site = ctl.index.tcp_site
+        jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+        mujoco.mj_jacSite(model, data, jacp, jacr, site)
+        reference = np.vstack([jacp, jacr])[:, ctl.index.arm_dof]
+        ours = ctl.tcp_jacobian(data.cdof[None], data.subtree_com[None], data.site_xpos[site][None])
+        np.testing.assert_array_equal(ours[0], reference)
+
+
+def test_contact_sensors_report_what_the_contact_list_holds():
+    """Pad-on-plug and robot-on-table flags from the contact sensors against a walk over
+    ``data.contact``, along an expert's grasp and a dive into the table."""
+    cls = expert_class("insertion")
+    env = wirecraft.make("insertion", control=cls.CONTROL).unwrapped
+    obs, _ = env.reset(seed=0)
+    expert = cls(env, seed=0)
+    expert.reset()
+    task, model, data = env.task, env.model, env.data
+    seen = {"pads": 0, "table": 0}
+
+    def check():
+        frame = Frame.of_data(data)
+        pads = task.pads_touching(frame)[0]
+        walked = task.pad_contacts(model, data, task.assembly.plug_contacts)
+        assert tuple(bool(p) for p in pads) == tuple(walked)
+        table = bool(task.table_collision(frame)[0])
+        assert table == task.gripper_collision(model, data)
+        seen["pads"] += int(pads.all())
+        seen["table"] += int(table)
+
+    for _ in range(150):
+        obs, *_ = env.step(expert.act(obs[None])[0])
+        check()
+    dive = np.zeros(env.action_space.shape)
+    dive[2] = -1.0
+    for _ in range(60):
+        env.step(dive)
+        check()
+    assert seen["pads"] > 0 and seen["table"] > 0  # both kinds of contact were exercised
+
+
+def episode_trace(batched, threads=2, num_envs=3, steps=40):
+    venv = wirecraft.make_vec(
+        "insertion", num_envs, threads=threads, batched=batched, episode_seconds=0.5
+    )
+    assert venv.batched == batched
+    obs, _ = venv.reset(seed=11)
+    rng = np.random.default_rng(5)
+    trace = [(obs.copy(), None, None, None)]
+    for _ in range(steps):
+        obs, rewards, terminated, truncated, infos = venv.step(
+            rng.uniform(-1, 1, venv.action_space.shape)
+        )
+        trace.append((obs.copy(), rewards.copy(), truncated.copy(), infos))
+    return trace
+
+
+def test_the_batched_step_is_the_per_environment_step():
+    """Observations, rewards, flags and every info key, through an autoreset (30-step
+    episodes), bit for bit."""
+    batched, single = episode_trace(True), episode_trace(False)
+    resets = 0
+    for (obs_a, rew_a, trunc_a, info_a), (obs_b, rew_b, trunc_b, info_b) in zip(
+        batched, single, strict=True
+    ):
+        np.testing.assert_array_equal(obs_a, obs_b)
+        if info_a is None:
+            continue
+        np.testing.assert_array_equal(rew_a, rew_b)
+        np.testing.assert_array_equal(trunc_a, trunc_b)
+        assert set(info_a) == set(info_b)
+        for key in info_a:
+            if key == "final_info":
+                for name in info_b[key]:
+                    np.testing.assert_array_equal(info_a[key][name], info_b[key][name])
+            elif key == "final_obs":
+                for i in np.flatnonzero(info_b["_final_obs"]):
+                    np.testing.assert_array_equal(info_a[key][i], info_b[key][i])
+                    resets += 1
+            else:
+                np.testing.assert_array_equal(info_a[key], info_b[key], err_msg=key)
+    assert resets == 3  # every environment finished one episode
+
+
+def test_synced_environments_mirror_the_batch_and_unsynced_ones_do_not_cost_a_copy():
+    synced = wirecraft.make_vec("insertion", 2, threads=1)
+    lazy = wirecraft.make_vec("insertion", 2, threads=1, sync_envs=False)
+    for venv in (synced, lazy):
+        venv.reset(seed=2)
+        for _ in range(3):
+            venv.step(np.full(venv.action_space.shape, 0.5))
+    from wirecraft.envs.env import STATE_SPEC
+
+    def state_of(venv, i):
+        out = np.empty(mujoco.mj_stateSize(venv.model, STATE_SPEC))
+        mujoco.mj_getState(venv.model, venv.envs[i].data, out, STATE_SPEC)
+        return out
+
+    for i in range(2):
+        np.testing.assert_array_equal(state_of(synced, i), synced.batch.state[i])
+        np.testing.assert_array_equal(
+            synced.envs[i].controller.target_pos, synced.controls.target_pos[i]
+        )
+        assert synced.envs[i]._steps == 3
+        assert not np.array_equal(state_of(lazy, i), lazy.batch.state[i])
+    lazy.render()  # rendering brings them up to date first
+    for i in range(2):
+        np.testing.assert_array_equal(state_of(lazy, i), lazy.batch.state[i])
+
+
+def test_diagnostics_can_be_left_out_of_info():
+    full = wirecraft.make_vec("insertion", 2, threads=1)
+    lean = wirecraft.make_vec("insertion", 2, threads=1, diagnostics=False)
+    keys = {}
+    for name, venv in (("full", full), ("lean", lean)):
+        venv.reset(seed=0)
+        *_, infos = venv.step(np.zeros(venv.action_space.shape))
+        keys[name] = {k for k in infos if not k.startswith("_")}
+    dropped = {"insertion_force", "grasp_force", "wire_tension", "min_bend_radius"}
+    dropped |= {"peak_contact_force"}
+    assert keys["full"] - keys["lean"] == dropped
+    assert {"success", "reach_success", "insert_success", "diverged"} <= keys["lean"]
+
+
+def test_batched_needs_a_batched_task_and_state_observations():
+    assert not wirecraft.make_vec("routing", 1, threads=1).batched
+    with pytest.raises(ValueError, match="batched=True needs"):
+        wirecraft.make_vec("routing", 1, threads=1, batched=True)
+    with pytest.raises(ValueError, match="obs_mode='state'"):
+        wirecraft.make_vec("insertion", 1, threads=1, batched=True, obs_mode="rgb", image_size=32)
