@@ -51,13 +51,13 @@ def test_environment_zero_is_the_same_whatever_num_envs_and_threads(task):
     np.testing.assert_array_equal(np.concatenate(single), reference)
 
 
-@pytest.mark.parametrize("batched", [True, False])
-def test_a_diverging_environment_leaves_the_others_untouched(batched):
+@pytest.mark.parametrize("batched, sync_envs", [(True, True), (True, False), (False, True)])
+def test_a_diverging_environment_leaves_the_others_untouched(batched, sync_envs):
     steps, victim = 6, 2
     actions = actions_for(wirecraft.make_vec("insertion", 4, threads=2), steps)
 
     def trajectories(inject):
-        venv = wirecraft.make_vec("insertion", 4, threads=2, batched=batched)
+        venv = wirecraft.make_vec("insertion", 4, threads=2, batched=batched, sync_envs=sync_envs)
         assert venv.batched == batched
         obs, _ = venv.reset(seed=SEED)
         out, flags = [obs.copy()], []
@@ -65,9 +65,9 @@ def test_a_diverging_environment_leaves_the_others_untouched(batched):
             if inject and k == 3:
                 env = venv.envs[victim]
                 dof = env.task.assembly.plug_dof
-                # The batched step keeps the states in the batch's rows; the other, in each
-                # environment's MjData.
-                qvel = venv.batch.qvel[victim] if batched else env.data.qvel
+                # Unsynced, the batched step's states live in the batch's rows only; otherwise
+                # a write into an environment's MjData is its state.
+                qvel = env.data.qvel if sync_envs else venv.batch.qvel[victim]
                 qvel[dof : dof + 6] = 1e6
             obs, reward, terminated, truncated, infos = venv.step(a)
             out.append(obs.copy())
