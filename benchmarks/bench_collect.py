@@ -7,14 +7,20 @@ Collects ``--episodes`` scripted insertion demonstrations into a temporary datas
 ``wirecraft collect`` does (worker processes generate, this process writes), then prints the
 throughput and where the CPU time goes, per saved episode:
 
-- physics + expert: ``env.step`` and ``expert.act`` in the workers;
+- physics + expert: ``env.step`` and ``expert.act`` in the workers (failed attempts included);
 - rendering: both cameras, in the workers (Mesa's threads included);
 - writing: this process (lerobot's ``add_frame`` / ``save_episode`` / commits), split into
-  video encoding alone (the episode's frames re-encoded with the dataset's own encoder
-  settings, measured separately) and the rest (lerobot's per-frame image statistics in the
-  encoder threads, parquet, metadata).
+  video encoding and image statistics (each measured alone on one episode's frames, with the
+  dataset's own encoder settings and ``ChannelLevelCounts``) and the rest (parquet, metadata);
+- the rest, mostly once per run: this process's CPU time minus the writing (imports: ~1.3 s
+  for wirecraft, ~4 s for lerobot with torch; receiving each episode's frames from a worker,
+  ~0.1 s) and the workers' CPU time minus the episodes' (imports, the first scene build,
+  sending the frames, and any attempt still running when the target is reached, dropped).
 
 The figures are CPU seconds: wall-clock times are distorted when other jobs share the cores.
+The CPU estimate of the throughput is ``3600 * cores / CPU seconds per episode`` with
+``cores = min(workers, os.cpu_count())``, steady (the per-episode costs above only) and for
+a run of ``--episodes`` (the rest included).
 """
 
 from __future__ import annotations
@@ -56,6 +62,18 @@ def encode_seconds(frames: np.ndarray, fps: int, vcodec: str) -> float:
         return time.process_time() - cpu
 
 
+def image_stats_seconds(frames: np.ndarray) -> float:
+    """CPU seconds to count one camera's frames for the image statistics, as the writer does."""
+    from wirecraft.datasets.encoding import ChannelLevelCounts
+
+    cpu = time.process_time()
+    counts = ChannelLevelCounts(3)
+    for image in frames:
+        counts.update(image)
+    counts.statistics()
+    return time.process_time() - cpu
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=12)
@@ -66,10 +84,13 @@ def main() -> None:
     parser.add_argument("--json", metavar="PATH")
     args = parser.parse_args()
 
-    from wirecraft.datasets.collect import CollectSettings, collect, run_episode
-    from wirecraft.datasets.writer import quiet_writing
+    import os
+    import resource
 
-    quiet_writing()
+    main_cpu0 = time.process_time()
+    children0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    from wirecraft.datasets.collect import CollectSettings, collect, run_episode
+
     settings = CollectSettings(
         task="insertion",
         env_kwargs={"connector": "ethernet"},
@@ -79,50 +100,84 @@ def main() -> None:
     )
     with tempfile.TemporaryDirectory() as tmp:
         report = collect(settings, Path(tmp) / "ds", args.episodes, workers=args.workers)
+    main_cpu = time.process_time() - main_cpu0
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)  # the pool's workers, joined
+    workers_cpu = (children.ru_utime - children0.ru_utime) + (
+        children.ru_stime - children0.ru_stime
+    )
     n = max(report.new_episodes, 1)
-    attempts = max(report.new_attempts, 1)
     t = report.timing
-    # Encoding alone, on one episode's frames (both cameras), in this process.
+    # Encoding and statistics alone, on one episode's frames (both cameras), in this process.
     sample = run_episode(settings, 0)
     encode = sum(encode_seconds(sample.images[c], args.fps, args.vcodec) for c in sample.images)
-    frames = len(sample)
-    per_episode = {
-        "physics_expert_cpu_s": t["physics_cpu_s"] / attempts,
-        "rendering_cpu_s": t["render_cpu_s"] / attempts,
-        "writing_cpu_s": t["write_cpu_s"] / n,
-        "encoding_only_cpu_s_per_frame": encode / frames / 2,
-    }
+    counting = sum(image_stats_seconds(sample.images[c]) for c in sample.images)
     frames_per_episode = report.new_frames / n
-    encoding = per_episode["encoding_only_cpu_s_per_frame"] * 2 * frames_per_episode
-    per_episode["encoding_cpu_s"] = encoding
-    per_episode["writing_other_cpu_s"] = per_episode["writing_cpu_s"] - encoding
-    rate = report.new_episodes / report.seconds * 3600.0
-    # Without the start-up (spawning the workers, importing lerobot, the first episode):
-    steady = (report.new_episodes - 1) / (report.seconds - report.first_save_s) * 3600.0
-    total_cpu = (
+    scale = frames_per_episode / len(sample)
+    per_episode = {
+        "physics_expert_cpu_s": t["physics_cpu_s"] / n,
+        "rendering_cpu_s": t["render_cpu_s"] / n,
+        "writing_cpu_s": t["write_cpu_s"] / n,
+        "encoding_cpu_s": encode * scale,
+        "image_stats_cpu_s": counting * scale,
+    }
+    per_episode["writing_other_cpu_s"] = (
+        per_episode["writing_cpu_s"]
+        - per_episode["encoding_cpu_s"]
+        - per_episode["image_stats_cpu_s"]
+    )
+    episode_cpu = (
         per_episode["physics_expert_cpu_s"]
         + per_episode["rendering_cpu_s"]
         + per_episode["writing_cpu_s"]
     )
+    other = {
+        "main_other_cpu_s": main_cpu - t["write_cpu_s"],
+        "workers_other_cpu_s": workers_cpu - t["physics_cpu_s"] - t["render_cpu_s"],
+    }
+    cores = min(max(args.workers, 1), os.cpu_count() or 1)
+    run_cpu = episode_cpu * n + sum(other.values())
+    rate = report.new_episodes / report.seconds * 3600.0
+    # Without the start-up (spawning the workers, importing lerobot, the first episode):
+    steady = (report.new_episodes - 1) / (report.seconds - report.first_save_s) * 3600.0
+    estimate = {
+        "steady_demos_per_hour_from_cpu": 3600.0 * cores / episode_cpu,
+        "run_demos_per_hour_from_cpu": 3600.0 * cores * n / run_cpu,
+    }
     print(
         f"insertion/ethernet, {args.image_size}x{args.image_size} side + wrist cameras, "
         f"{args.fps} fps, {args.vcodec}, {args.workers} workers: {report.new_episodes} episodes "
-        f"({report.success_rate:.0%} success) in {report.seconds:.1f} s "
-        f"= {rate:.0f} demonstrations/hour ({steady:.0f}/hour after the first episode)"
+        f"({report.success_rate:.0%} success, {report.new_attempts} attempts)"
     )
-    print(f"CPU seconds per saved episode ({frames_per_episode:.0f} frames): {total_cpu:.2f}")
+    print(f"CPU seconds per saved episode ({frames_per_episode:.0f} frames): {episode_cpu:.2f}")
     for key, value in per_episode.items():
-        if key != "encoding_only_cpu_s_per_frame":
-            print(f"  {key:24s} {value:6.2f}")
-    print(f"  (encoding alone: {1000 * per_episode['encoding_only_cpu_s_per_frame']:.1f} ms/frame)")
+        indent = (
+            "    "
+            if key in ("encoding_cpu_s", "image_stats_cpu_s", "writing_other_cpu_s")
+            else "  "
+        )
+        print(f"{indent}{key:26s} {value:6.2f}")
+    print(f"CPU seconds besides (mostly start-up): {sum(other.values()):.2f}")
+    for key, value in other.items():
+        print(f"  {key:26s} {value:6.2f}")
+    print(
+        f"from CPU time, {cores} cores: {estimate['steady_demos_per_hour_from_cpu']:.0f} "
+        f"demonstrations/hour steady, {estimate['run_demos_per_hour_from_cpu']:.0f}/hour for "
+        f"a run of {n} (everything included)"
+    )
+    print(
+        f"wall clock: {report.seconds:.1f} s = {rate:.0f} demonstrations/hour "
+        f"({steady:.0f}/hour after the first episode; distorted when other jobs share the cores)"
+    )
     if args.json:
         Path(args.json).write_text(
             json.dumps(
                 {
                     "demos_per_hour": rate,
                     "steady_demos_per_hour": steady,
+                    **estimate,
                     "report": report.to_dict(),
                     "per_episode": per_episode,
+                    "other_cpu_s": other,
                 },
                 indent=2,
             )

@@ -237,28 +237,29 @@ def test_worker_processes_write_the_same_episodes(reference, tmp_path):
         assert np.array_equal(column(ours, key, 0), column(theirs, key, 0)), key
 
 
+ROUTING_FEATURES = schema.features_for("ur5", 32, task="routing", control="cartesian")
+
+
+def random_episode(rng, source: str = "rl", n: int = 5) -> Episode:
+    """A routing episode of random values in ``ROUTING_FEATURES``' schema."""
+    return Episode(
+        task="route the wire",
+        source=source,
+        seed=schema.NO_SEED,
+        state=rng.normal(size=(n, 7)),
+        action=rng.normal(size=(n, 7)),
+        cartesian_state=rng.normal(size=(n, 7)),
+        env_action=rng.uniform(-1, 1, size=(n, 14)),
+        images={c: rng.integers(0, 255, (n, 32, 32, 3), dtype=np.uint8) for c in schema.CAMERAS},
+        flags={"success": np.arange(n) > 2},
+    )
+
+
 def test_other_sources_write_the_same_schema(tmp_path):
     """An RL rollout or teleoperation episode goes through the same writer."""
-    features = schema.features_for("ur5", 32, task="routing", control="cartesian")
+    features = ROUTING_FEATURES
     rng = np.random.default_rng(0)
-    n = 5
-
-    def episode(source):
-        return Episode(
-            task="route the wire",
-            source=source,
-            seed=schema.NO_SEED,
-            state=rng.normal(size=(n, 7)),
-            action=rng.normal(size=(n, 7)),
-            cartesian_state=rng.normal(size=(n, 7)),
-            env_action=rng.uniform(-1, 1, size=(n, 14)),
-            images={
-                c: rng.integers(0, 255, (n, 32, 32, 3), dtype=np.uint8) for c in ("side", "wrist")
-            },
-            flags={"success": np.arange(n) > 2},
-        )
-
-    episodes = [episode("rl"), episode("teleop")]
+    episodes = [random_episode(rng, "rl"), random_episode(rng, "teleop")]
     with EpisodeWriter.create(tmp_path / "mixed", features, 30, commit_every=1) as writer:
         for e in episodes:
             writer.add_episode(e)
@@ -293,6 +294,209 @@ def test_failed_episodes_are_dropped_or_kept_and_counted(tmp_path):
     assert dataset.num_frames == 30  # 60 control steps at 30 fps
     assert not column(dataset, "success", 0).any()
     assert read_commit(tmp_path / "keep")["progress"]["episodes"][0]["end"] == "time_limit"
+
+
+# -- image statistics and video encoding (datasets/encoding.py) --------------------------------
+def test_level_counts_give_numpys_statistics():
+    from wirecraft.datasets.encoding import ChannelLevelCounts
+
+    rng = np.random.default_rng(1)
+    images = rng.integers(20, 230, (5, 17, 13, 3), dtype=np.uint8)
+    images[..., 1] //= 3  # another distribution in each channel
+    images[..., 2] = np.minimum(images[..., 2], 90)
+    counts = ChannelLevelCounts(3)
+    for image in images:
+        counts.update(image)
+    stats = counts.statistics()
+    pixels = images.reshape(-1, 3).astype(np.float64)
+    assert stats["count"].tolist() == [len(pixels)]
+    assert np.array_equal(stats["min"], pixels.min(axis=0))
+    assert np.array_equal(stats["max"], pixels.max(axis=0))
+    assert np.allclose(stats["mean"], pixels.mean(axis=0), rtol=1e-12)
+    assert np.allclose(stats["std"], pixels.std(axis=0), rtol=1e-9)
+    for q in (0.01, 0.10, 0.50, 0.90, 0.99):
+        expected = np.quantile(pixels, q, axis=0, method="inverted_cdf")
+        assert np.array_equal(stats[f"q{round(q * 100):02d}"], expected), q
+    with pytest.raises(ValueError, match="uint8"):
+        counts.update(images[0].astype(np.float32))
+    with pytest.raises(ValueError, match="no pixels"):
+        ChannelLevelCounts(3).statistics()
+
+
+def test_image_statistics_match_lerobots_tracker_over_every_frame(reference):
+    """The statistics stored for the videos against lerobot's own ``RunningQuantileStats``
+    fed every pixel of every frame (what its streaming encoder computes), on the frames of
+    an independent run of the same episodes."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from lerobot.datasets.compute_stats import RunningQuantileStats
+
+    root, _ = reference
+    dataset = load(root)
+    records = read_commit(root)["progress"]["episodes"]
+    # Per-episode statistics as stored (lerobot's loader leaves them out of meta.episodes).
+    stored_episodes = pa.concat_tables(
+        pq.read_table(path) for path in sorted((root / "meta" / "episodes").rglob("*.parquet"))
+    ).to_pylist()
+    stored_episodes.sort(key=lambda row: row["episode_index"])
+    frames = {key: [] for key in schema.CAMERAS.values()}
+    for e, record in enumerate(records):
+        episode = run_episode(SETTINGS, record["attempt"])
+        assert len(episode) == record["frames"]
+        for camera, key in schema.CAMERAS.items():
+            frames[key].append(episode.images[camera])
+            tracker = RunningQuantileStats()
+            for image in episode.images[camera]:
+                tracker.update(image.reshape(-1, 3))
+            truth = tracker.get_statistics()
+            row = stored_episodes[e]
+            for stat, value in truth.items():
+                stored = np.asarray(row[f"stats/{key}/{stat}"], dtype=np.float64).reshape(-1)
+                if stat == "count":
+                    assert stored.tolist() == value.tolist()
+                    continue
+                # lerobot interpolates quantiles in 5000 bins over [min, max] (< 1 / 5000);
+                # its float32 running means round at ~1e-6, its std (from E[x^2] - E[x]^2)
+                # at ~2e-5; ours are exact (checked against float64 below).
+                tolerance = {"std": 1e-4}.get(stat, 1e-3 if stat.startswith("q") else 1e-5)
+                assert np.allclose(stored, value / 255.0, atol=tolerance), (key, stat)
+    # The dataset-wide statistics (lerobot aggregates the episodes') are those of all frames.
+    for key, parts in frames.items():
+        pixels = np.concatenate(parts).reshape(-1, 3).astype(np.float64) / 255.0
+        stats = dataset.meta.stats[key]
+        assert np.asarray(stats["mean"]).shape == (3, 1, 1)
+        assert np.allclose(np.ravel(stats["mean"]), pixels.mean(axis=0), atol=1e-6)
+        assert np.allclose(np.ravel(stats["std"]), pixels.std(axis=0), atol=1e-6)
+        assert np.allclose(np.ravel(stats["min"]), pixels.min(axis=0))
+        assert np.allclose(np.ravel(stats["max"]), pixels.max(axis=0))
+
+
+def test_our_encoder_writes_what_lerobots_streaming_encoder_writes(tmp_path):
+    """The same episode through lerobot's own ``LeRobotDataset`` (its streaming encoder) and
+    through ours: byte-identical videos, identical frames, the same statistics (images' close,
+    see ``encoding.py``)."""
+    import pyarrow.parquet as pq
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from wirecraft.datasets.encoding import WireCraftLeRobotDataset
+
+    rng = np.random.default_rng(4)
+    episode = random_episode(rng, n=12)
+    x = np.arange(32)
+    for camera in schema.CAMERAS:  # gradients plus noise: realistic statistics and video
+        ramp = (x[:, None, None] * 5 + x[None, :, None] * 3 + [0, 60, 120]).astype(float)
+        noise = rng.normal(0, 12, size=(12, 32, 32, 3))
+        moving = np.arange(12)[:, None, None, None] * 7
+        episode.images[camera] = np.clip(ramp + noise + moving, 0, 255).astype(np.uint8)
+    options = EpisodeWriter._open_options("h264", 1)
+    roots = {}
+    for cls in (LeRobotDataset, WireCraftLeRobotDataset):
+        roots[cls] = tmp_path / cls.__name__
+        dataset = cls.create(
+            DEFAULT_REPO_ID, fps=30, features=ROUTING_FEATURES, root=roots[cls], **options
+        )
+        for frame in episode.frames():
+            dataset.add_frame(frame)
+        dataset.save_episode()
+        dataset.finalize()
+    theirs, ours = roots.values()
+    videos = sorted(p.relative_to(theirs) for p in theirs.rglob("*.mp4"))
+    assert len(videos) == 2 and videos == sorted(p.relative_to(ours) for p in ours.rglob("*.mp4"))
+    for video in videos:
+        assert (theirs / video).read_bytes() == (ours / video).read_bytes(), video
+    data = sorted(p.relative_to(theirs) for p in theirs.glob("data/**/*.parquet"))
+    assert data
+    for path in data:
+        assert pq.read_table(theirs / path).equals(pq.read_table(ours / path)), path
+    their_stats, our_stats = (
+        json.loads((r / "meta" / "stats.json").read_text()) for r in roots.values()
+    )
+    assert their_stats.keys() == our_stats.keys()
+    for key, stats in their_stats.items():
+        for stat, value in stats.items():
+            tolerance = 1e-3 if key in schema.CAMERAS.values() else 0.0
+            assert np.allclose(our_stats[key][stat], value, atol=tolerance, rtol=0), (key, stat)
+
+
+def test_skipped_image_embedding_writes_what_lerobot_writes(tmp_path):
+    import datasets
+    from lerobot.datasets import dataset_writer
+    from lerobot.datasets.feature_utils import get_hf_features_from_features
+    from PIL import Image
+
+    from wirecraft.datasets.encoding import install_embed_shortcut
+
+    install_embed_shortcut()
+    install_embed_shortcut()  # idempotent: one wrapper around lerobot's function
+    shortcut = dataset_writer.embed_images
+    lerobots = shortcut.__wrapped__
+    assert not hasattr(lerobots, "__wrapped__")
+    rng = np.random.default_rng(2)
+    plain = {
+        "observation.state": {"dtype": "float32", "shape": (3,), "names": None},
+        "success": {"dtype": "bool", "shape": (1,), "names": None},
+    }
+    columns = {
+        "observation.state": rng.normal(size=(6, 3)).astype(np.float32),
+        "success": [True, False] * 3,
+    }
+    data = datasets.Dataset.from_dict(columns, features=get_hf_features_from_features(plain))
+    assert shortcut(data) is data  # nothing to embed: skipped
+    ours = shortcut(data).with_format("arrow")[:]
+    theirs = lerobots(data).with_format("arrow")[:]
+    assert ours.equals(theirs)  # columns, types and values
+    # The schema's Hugging Face metadata: the same features; ``map`` adds only a cache key.
+    ours_info, theirs_info = (
+        json.loads(table.schema.metadata[b"huggingface"]) for table in (ours, theirs)
+    )
+    assert set(theirs_info) - set(ours_info) <= {"fingerprint"}
+    assert ours_info["info"] == theirs_info["info"]
+    # With an image feature, lerobot's embedding runs: the PNG bytes land in the table.
+    paths = []
+    for i in range(2):
+        paths.append(str(tmp_path / f"{i}.png"))
+        Image.fromarray(rng.integers(0, 255, (8, 8, 3), dtype=np.uint8)).save(paths[-1])
+    image = {"observation.image": {"dtype": "image", "shape": (8, 8, 3), "names": None}}
+    with_images = datasets.Dataset.from_dict(
+        {"observation.image": paths}, features=get_hf_features_from_features(image)
+    )
+    embedded = shortcut(with_images).with_format("arrow")[:]
+    stored = embedded.column("observation.image").to_pylist()
+    assert [row["bytes"] for row in stored] == [open(p, "rb").read() for p in paths]
+
+
+def test_a_failed_episode_leaves_no_partial_video(tmp_path):
+    """An episode that fails half-way is discarded (its unfinished videos deleted); the next
+    one is written and the dataset loads."""
+
+    class Broken(Episode):
+        def frames(self):
+            for t, frame in enumerate(super().frames()):
+                if t == 3:
+                    raise RuntimeError("the robot controller went away")
+                yield frame
+
+    rng = np.random.default_rng(3)
+    root = tmp_path / "ds"
+    good = random_episode(rng)
+    # Smooth images (a colour gradient moving over the frames): video-friendly, unlike noise.
+    x = np.arange(32)
+    for camera in schema.CAMERAS:
+        gradient = [(x[:, None, None] * 6 + x[None, :, None] * 2 + t * 40) % 256 for t in range(5)]
+        gradient = np.broadcast_to(np.asarray(gradient), (5, 32, 32, 3)) + [0, 40, 80]
+        good.images[camera] = np.clip(gradient, 0, 255).astype(np.uint8)
+    broken = Broken(**{f: getattr(random_episode(rng), f) for f in Episode.__dataclass_fields__})
+    with EpisodeWriter.create(root, ROUTING_FEATURES, 30, commit_every=1) as writer:
+        with pytest.raises(RuntimeError, match="went away"):
+            writer.add_episode(broken)
+        assert sorted(p.name for p in root.iterdir()) == ["meta"]  # no temporary folders
+        assert writer.add_episode(good) == 0
+    dataset = load(root)
+    assert dataset.num_episodes == 1
+    assert np.allclose(column(dataset, "observation.state", 0), good.state, atol=1e-6)
+    decoded = dataset[2]["observation.images.cam_side"].numpy().transpose(1, 2, 0) * 255.0
+    assert np.abs(decoded - good.images["side"][2]).mean() < VIDEO_TOLERANCE
+    assert np.abs(decoded - good.images["side"][3]).mean() > 2 * VIDEO_TOLERANCE
 
 
 # -- interruptions ---------------------------------------------------------------------------------

@@ -401,10 +401,10 @@ def _differences(stored: dict, wanted: dict) -> list[str]:
     ]
 
 
-def _open_writer(
-    settings: CollectSettings, out: Path, resume: bool, features, robot_type, commit_every
-):
-    from wirecraft.datasets.writer import EpisodeWriter
+def _check_out(settings: CollectSettings, out: Path, resume: bool) -> dict | None:
+    """Refuse an ``out`` that cannot take these settings; the commit record of the dataset to
+    continue (None for a new dataset).  Cheap (no lerobot): runs before the workers start."""
+    from wirecraft.datasets.writer import COMMIT_FILE, read_commit
 
     existing = out.exists() and (not out.is_dir() or any(out.iterdir()))
     if existing and not resume:
@@ -427,6 +427,19 @@ def _open_writer(
                 + "; ".join(diff)
                 + ")"
             )
+        record = read_commit(out)
+        if record is None:
+            raise ValueError(f"{out}: no {COMMIT_FILE}; not a dataset written by EpisodeWriter")
+        return record
+    return None
+
+
+def _open_writer(
+    settings: CollectSettings, out: Path, existing: bool, features, robot_type, commit_every
+):
+    from wirecraft.datasets.writer import EpisodeWriter
+
+    if existing:
         return EpisodeWriter.open(out, commit_every=commit_every)
     progress = {"next_attempt": 0, "attempts": 0, "dropped_failures": 0, "episodes": []}
     writer = EpisodeWriter.create(
@@ -483,10 +496,15 @@ def collect(
     # and the features come from the environment itself.
     env, recorder, _ = _episode_tools(settings)
     features = recorder.features()
-    writer = _open_writer(settings, out, resume, features, env.unwrapped.robot_name, commit_every)
-    progress = dict(writer.progress)
+    # What the dataset holds comes from its last commit (opening the writer rolls it back to
+    # that commit), so the workers can start before the writer: opening it imports lerobot
+    # (torch, torchvision: ~4 s of CPU), time the workers spend on their first episodes.
+    committed = _check_out(settings, out, resume)
+    progress = dict(committed["progress"] or {}) if committed else {}
     records: list[dict] = list(progress.get("episodes", []))
-    report = CollectReport(out=str(out), target=episodes, saved=writer.num_episodes)
+    report = CollectReport(
+        out=str(out), target=episodes, saved=committed["episodes"] if committed else 0
+    )
     report.saved_successes = sum(1 for r in records if r["success"])
     report.saved_failures = len(records) - report.saved_successes
     report.dropped_failures = int(progress.get("dropped_failures", 0))
@@ -512,6 +530,19 @@ def collect(
         disable=not progress_bar,
         dynamic_ncols=True,
     )
+    pending: deque = deque()
+    submitted = next_attempt
+
+    def submit_window() -> None:
+        # No more attempts in flight than episodes still needed: when the target is reached
+        # the pool is terminated, and attempts running then would be wasted work (with the
+        # expert's ~100% success, half an episode per worker); a failure frees a place.
+        nonlocal submitted
+        limit = min(executor.window, episodes - report.saved)
+        while len(pending) < limit and submitted < max_attempts:
+            pending.append((submitted, executor.submit(submitted), time.monotonic()))
+            submitted += 1
+
     try:
         with _StopOnSignal() as stopper:
             if report.saved < episodes and next_attempt < max_attempts:
@@ -521,12 +552,16 @@ def collect(
                     executor = _InProcess(settings)
                 else:
                     executor = _ProcessPool(settings, workers)
-            pending: deque = deque()
-            submitted = next_attempt
+                submit_window()
+            robot_type = env.unwrapped.robot_name
+            writer = _open_writer(
+                settings, out, committed is not None, features, robot_type, commit_every
+            )
+            report.saved = writer.num_episodes
+            if pending:  # the head attempt's clock starts now that results can be taken
+                pending[0] = (*pending[0][:2], time.monotonic())
             while executor is not None and report.saved < episodes and not stopper.stop:
-                while len(pending) < executor.window and submitted < max_attempts:
-                    pending.append((submitted, executor.submit(submitted), time.monotonic()))
-                    submitted += 1
+                submit_window()
                 if not pending:
                     report.gave_up = True
                     break
