@@ -2,8 +2,10 @@
 
 For each (task, wire, num_envs, threads): reset, warm up, then time ``step`` over a measured
 window.  The raw figure steps the same model and substeps with ``mujoco.batch`` alone (no
-Python environment code, controls held), from the same states; ``overhead_ratio`` is the
-environment's step time over the raw one.  Rows as SPEC section 1; CSV, JSON and a PNG plot.
+Python environment code, controls held), from the same states: each control step is timed
+twice, the batch alone first, then (states put back) the environment, so both see the same
+contacts; ``overhead_ratio`` is the environment's step time over the raw one.  Rows as SPEC
+section 1; CSV, JSON and a PNG plot.
 
 Two configurations (the ``info`` column): ``training`` (the default, as ``wirecraft train`` runs
 it: ``diagnostics=False, sync_envs=False``, success flags and reward terms in ``info``) and
@@ -37,20 +39,6 @@ FIELDS = (
 )
 
 
-def _timed(call, seconds: float, warmup: float) -> float:
-    """Seconds per call, over at least ``seconds`` after ``warmup`` seconds of calls."""
-    end = time.perf_counter() + warmup
-    while time.perf_counter() < end:
-        call()
-    calls, start = 0, time.perf_counter()
-    while True:
-        call()
-        calls += 1
-        elapsed = time.perf_counter() - start
-        if elapsed >= seconds:
-            return elapsed / calls
-
-
 INFO_CONFIGS = {
     "training": {"diagnostics": False, "sync_envs": False},
     "full": {"diagnostics": True, "sync_envs": True},
@@ -74,18 +62,37 @@ def measure(
     venv = wirecraft.make_vec(task, num_envs, threads=threads, wire=wire, **INFO_CONFIGS[info])
     venv.reset(seed=0)
     rng = np.random.default_rng(0)
-
-    def env_step():
-        venv.step(rng.uniform(-0.3, 0.3, venv.action_space.shape))
-
-    env_time = _timed(env_step, seconds, warmup)
-    # Raw physics: the same model, states and substeps, stepped by the batch alone.
     batch = venv.batch
-    if not venv.batched:  # a batched environment's rows already hold its states
-        for i, env in enumerate(venv.envs):
-            mujoco.mj_getState(venv.model, env.data, batch.state[i], STATE_SPEC)
-    raw_time = _timed(lambda: batch.step(nstep=SUBSTEPS), seconds, warmup)
+    acc = mujoco.mjtStage.mjSTAGE_ACC.value
+
+    def paired_step() -> tuple[float, float]:
+        """(raw, env) seconds of one control step from the same states: the batch alone
+        steps them (controls held), the states are put back, then the environment steps."""
+        if not venv.batched:  # the per-environment step keeps its states in each MjData
+            for i, env in enumerate(venv.envs):
+                mujoco.mj_getState(venv.model, env.data, batch.state[i], STATE_SPEC)
+        saved = batch.state.copy()
+        start = time.perf_counter()
+        batch.step(nstep=SUBSTEPS)
+        raw = time.perf_counter() - start
+        batch.state[:] = saved
+        if venv.batched:  # its next step reads the derived fields of those states
+            batch.forward(stage=acc)
+        actions = rng.uniform(-0.3, 0.3, venv.action_space.shape)
+        start = time.perf_counter()
+        venv.step(actions)
+        return raw, time.perf_counter() - start
+
+    end = time.perf_counter() + warmup
+    while time.perf_counter() < end:
+        paired_step()
+    raw_total = env_total = 0.0
+    calls = 0
+    while env_total < seconds or calls < 3:
+        raw, env = paired_step()
+        raw_total, env_total, calls = raw_total + raw, env_total + env, calls + 1
     venv.close()
+    raw_time, env_time = raw_total / calls, env_total / calls
     control = num_envs / env_time
     return {
         "task": task,
