@@ -229,6 +229,7 @@ class WireCraftVectorEnv(VectorEnv):
             self.controls.restore(diverged, controls_before)
             self.batch.forward(diverged, stage=ACC)
 
+        frame.cache.clear()  # new positions
         synced = np.zeros(n, bool)
 
         def data_of(i):

@@ -10,7 +10,7 @@ single environment's.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
@@ -41,6 +41,14 @@ class Frame:
     eq_active: np.ndarray  # (N, neq); writable: the task's latches change it
     cdof: np.ndarray  # (N, nv, 6) for Jacobians
     subtree_com: np.ndarray  # (N, nbody, 3)
+    # Quantities derived from the positions, computed once per state (``cached``); whoever
+    # changes the state clears it (``Frame.of_batch`` frames live across steps).
+    cache: dict = field(default_factory=dict, repr=False)
+
+    def cached(self, name: str, compute):
+        if name not in self.cache:
+            self.cache[name] = compute()
+        return self.cache[name]
 
     @property
     def size(self) -> int:

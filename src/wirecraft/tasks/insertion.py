@@ -49,7 +49,7 @@ import numpy as np
 from wirecraft import physics
 from wirecraft.assets.connectors import CONNECTORS, add_port, add_retention, make_connector
 from wirecraft.assets.fixtures import PortStandConfig
-from wirecraft.assets.robots.kinematics import mats_to_quats
+from wirecraft.assets.robots.kinematics import cross3, mats_to_quats
 from wirecraft.assets.shapes import add_to_body, quat_about
 from wirecraft.sensors import body_geom_ids, contact_normal_force
 from wirecraft.tasks.assembly import WireAssembly
@@ -200,7 +200,10 @@ class InsertionTask(BatchedTask):
         )
 
     def seating_errors_batch(self, frame: Frame) -> dict[str, np.ndarray]:
-        """``seating_errors`` of N simulations, each (N,)."""
+        """``seating_errors`` of N simulations, each (N,) (computed once per frame state)."""
+        return frame.cached("seating_errors", lambda: self._seating_errors_batch(frame))
+
+    def _seating_errors_batch(self, frame: Frame) -> dict[str, np.ndarray]:
         entry = frame.site_xpos[:, self.entry_site]
         port_rot = frame.rot("xmat", self.port_id)
         axis = port_rot[:, :, 0]
@@ -212,7 +215,7 @@ class InsertionTask(BatchedTask):
         # Roll: angle of the plug's up (z) axis about the socket axis, against the socket's.
         up = plug_rot[:, :, 2] - dots(plug_rot[:, :, 2], axis)[:, None] * axis
         socket_up = port_rot[:, :, 2]
-        roll = np.arctan2(dots(np.cross(socket_up, up), axis), dots(socket_up, up))
+        roll = np.arctan2(dots(cross3(socket_up, up), axis), dots(socket_up, up))
         n = self.connector.symmetry
         if n == 0:
             roll_error = np.zeros_like(roll)
