@@ -39,6 +39,12 @@ base frame.
 - Press: when the wire lies over the slot's mouth but not in it (on the lips), one open pad is
   brought over the slot and lowered onto the wire, slowly near it, down to just above the
   clip's top or until the wrist feels ``press_force``.
+- A slot link that crosses aslant (from the second clip on, on a retry of a clip or when the
+  hop from the previous clip meets the slot axis at more than ``aslant_hop``): the articulated
+  wire's rigid link then lies across the slot at about the hop's angle and levers about the
+  lips.  The grasp is taken at a joint, that joint is brought ``retry_joint`` past the slot
+  centre (the pads clamp the end of the slot's own link), and the pads turn about the
+  vertical against the slot link's yaw (``yaw_gain``, at most ``max_yaw``).
 """
 
 from __future__ import annotations
@@ -50,6 +56,7 @@ import numpy as np
 from wirecraft.experts.base import ScriptedExpert, rotation_angle
 from wirecraft.experts.fsm import Phase
 from wirecraft.tasks.assembly import resample
+from wirecraft.tasks.routing import MAX_CLIPS
 
 UP = np.array([0.0, 0.0, 1.0])  # world
 
@@ -90,6 +97,15 @@ class RoutingExpertConfig:
     crossing_reach: float = 0.05  # m: a wire crossing the clip's mid-plane farther is ignored
     lateral_gain: float = 0.3  # of the wire's offset at the slot, corrected per step
     max_lateral: float = 0.012  # m: largest lateral correction of the pull-back point
+    # A retry of a clip (the push before left it empty) changes what failed: the slot's link
+    # crossed it aslant.  It grasps the wire at a joint, brings that joint ``retry_joint`` past
+    # the slot centre, and turns the pads (about up) against the slot link's yaw.
+    retry_changes: bool = True
+    retry_joint: float = 0.024  # m past the slot centre for the joint held between the pads
+    retry_joint_reach: float = 0.003  # m: grasp points at most this far from a joint
+    yaw_gain: float = 0.1  # of the slot link's yaw off the slot axis, turned per step
+    max_yaw: float = 0.4  # rad: largest turn of the pads off the slot axis
+    aslant_hop: float = 0.26  # rad: hops steeper than this get the retry changes at once
     seated_margin: float = 0.001  # m below the lips a wire must lie to count as seated
     max_grasp_retries: int = 2  # per clip: re-grasps after a grasp that did not hold
     max_seat_retries: int = 2  # per episode: clips routed again after a failed push
@@ -146,9 +162,12 @@ class RoutingExpert(ScriptedExpert):
         self.seat_retries = np.zeros(self.num_envs, int)
         self.grasp_arc = np.zeros(self.num_envs)  # m along the wire of the current grasp
         self.free_wire = np.zeros(self.num_envs)  # m of wire between anchor and grasp
-        self.held_below = np.full(self.num_envs, 0.005)  # m: held wire's centre below the TCP
+        self.held_below = np.full(self.num_envs, self.config.wire_below_tcp)  # m: held wire's
+        # centre below the TCP
         self.front = np.full(self.num_envs, self.config.front)  # m: pads past the slot centre
         self.lateral = np.zeros(self.num_envs)  # m: correction of the pull-back point
+        self.yaw = np.zeros(self.num_envs)  # rad: the pads' turn off the slot axis (about up)
+        self.tries = np.zeros((self.num_envs, MAX_CLIPS), int)  # routings begun, per clip
         self.wrench_before = np.zeros((self.num_envs, 3))  # N: wrist force as a push began
         self.force_steps = np.zeros(self.num_envs, int)  # steps in a row over the force limit
         self.force_stopped = np.zeros(self.num_envs, bool)
@@ -157,6 +176,19 @@ class RoutingExpert(ScriptedExpert):
         self.clip[mask] = 0
         self.grasp_retries[mask] = 0
         self.seat_retries[mask] = 0
+        self.tries[mask] = 0
+        self.tries[mask, 0] = 1
+        self.yaw[mask] = 0.0
+        # Everything an episode learns about its wire starts afresh: an episode depends on its
+        # seed only, not on the episodes the environment ran before.
+        self.grasp_arc[mask] = 0.0
+        self.free_wire[mask] = 0.0
+        self.held_below[mask] = self.config.wire_below_tcp
+        self.front[mask] = self.config.front
+        self.lateral[mask] = 0.0
+        self.wrench_before[mask] = 0.0
+        self.force_steps[mask] = 0
+        self.force_stopped[mask] = False
 
     # -- frames ------------------------------------------------------------------------------
     def _up(self, i):
@@ -281,7 +313,13 @@ class RoutingExpert(ScriptedExpert):
             if ok.any():
                 break
         candidates = np.flatnonzero(ok)
-        if (clear & far).any():
+        nodes_arc = self._arc(nodes)
+        node_dist = np.min(np.abs(arc[:, None] - nodes_arc[None, :]), axis=1)
+        articulated = np.median(np.diff(nodes_arc)) > 0.012
+        at_joint = clear & far & (node_dist < cfg.retry_joint_reach)
+        if self._retrying(i) and articulated and at_joint.any():
+            k = np.flatnonzero(at_joint)[0]
+        elif (clear & far).any():
             k = candidates[0]  # the first point far enough: the wire is nearly taut at the front
         else:
             k = candidates[np.argmin(np.linalg.norm(points[candidates] - slot, axis=1))]
@@ -415,6 +453,49 @@ class RoutingExpert(ScriptedExpert):
             return None
         return float(points[best, 1]), float(height[best])
 
+    def _retrying(self, i) -> bool:
+        """Whether environment ``i`` routes its current clip with the changes for a slot link
+        that crosses aslant: on a retry, or on the first try when the hop from the previous
+        clip meets this clip's axis at more than ``aslant_hop``."""
+        cfg = self.config
+        if not cfg.retry_changes or self.clip[i] == 0:
+            return False
+        return self.tries[i, self.clip[i]] > 1 or self._hop_angle(i) > cfg.aslant_hop
+
+    def _hop_angle(self, i) -> float:
+        """rad between the current clip's slot axis and the straight line to it from the
+        previous clip (0 for the first clip)."""
+        if self.clip[i] == 0:
+            return 0.0
+        env = self.envs[i]
+        clips = env.task.placed_clips(env.data)
+        here = clips[self.clip[i]].to_local(np.array([clips[self.clip[i] - 1].pos]))[0]
+        return float(np.arctan2(abs(here[1]), abs(here[0])))
+
+    def _slot_link_yaw(self, i):
+        """Yaw (rad, about up, in the clip's frame) of the piece of centre line that crosses
+        the clip's mid-plane nearest the slot, as a line (in (-pi/2, pi/2)); None when it
+        crosses nowhere within ``crossing_reach``.  For the articulated wire this is the rigid
+        link that has to lie along the slot: one crossing the slot aslant (>~ 12 deg) rests on
+        the lips and levers about them when pushed."""
+        env, cfg = self.envs[i], self.config
+        clip = env.task.placed_clips(env.data)[self.clip[i]]
+        local = clip.to_local(env.wire_points())
+        x = local[:, 0]
+        k = np.flatnonzero(np.signbit(x[:-1]) != np.signbit(x[1:]))
+        if len(k) == 0:
+            return None
+        t = x[k] / (x[k] - x[k + 1])
+        points = local[k] + t[:, None] * (local[k + 1] - local[k])
+        height = points[:, 2] - clip.config.base_height
+        best = int(np.argmin(np.hypot(points[:, 1], height)))
+        if np.hypot(points[best, 1], height[best]) > cfg.crossing_reach:
+            return None
+        d = local[k[best] + 1] - local[k[best]]
+        if d[0] < 0:
+            d = -d
+        return float(np.arctan2(d[1], d[0]))
+
     def _link_front(self, i, sign) -> float:
         """Pads' distance past the slot centre for the push.
 
@@ -436,6 +517,13 @@ class RoutingExpert(ScriptedExpert):
         beyond = (along > 0) & (along < tcp_along + 0.02) & (np.abs(local[:, 1]) < 0.02)
         if not beyond.any():
             return cfg.front
+        if self._retrying(i):
+            # a retry grasped at a joint: that joint (between the pads) to ``retry_joint``
+            held = (np.abs(along - tcp_along) < 0.008) & (np.abs(local[:, 1]) < 0.03)
+            if held.any():
+                joint = along[held][np.argmin(np.abs(along[held] - tcp_along))]
+                front = tcp_along + cfg.retry_joint - joint
+                return float(np.clip(front, cfg.min_front, cfg.max_front))
         joint = along[beyond].min()
         return float(np.clip(tcp_along + cfg.link_joint - joint, cfg.min_front, cfg.max_front))
 
@@ -538,6 +626,13 @@ class RoutingExpert(ScriptedExpert):
                     -cfg.max_lateral,
                     cfg.max_lateral,
                 )
+            link_yaw = self._slot_link_yaw(i) if self._retrying(i) else None
+            if link_yaw is not None:
+                self.yaw[i] = np.clip(
+                    self.yaw[i] - cfg.yaw_gain * link_yaw, -cfg.max_yaw, cfg.max_yaw
+                )
+        if name in ("pull_back", "push", "release", "retreat"):
+            slot_rot = _turn(up, self.yaw[i]) @ slot_rot
         if name == "pull_back":
             self.front[i] = self._link_front(i, sign)
         front = slot + self.front[i] * sign * axis + self.lateral[i] * lateral
@@ -622,6 +717,7 @@ class RoutingExpert(ScriptedExpert):
                     fsm.goto("approach", one)
             elif left == idx("stretch"):
                 self.lateral[i] = 0.0
+                self.yaw[i] = 0.0
             elif left in (idx("press_over"), idx("pull_back")):
                 self.wrench_before[i] = env.wrist_wrench()[:3]
                 self.force_steps[i] = 0
@@ -643,9 +739,16 @@ class RoutingExpert(ScriptedExpert):
             self.fsm.goto("done", one)
             return
         self.clip[i] = nxt
+        self.tries[i, nxt] += 1
         self.grasp_retries[i] = 0
         self.fsm.snapshots["grasp_pos"][i] = np.nan
         self.fsm.goto("approach", one)
+
+
+def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation matrix of ``angle`` (rad) about the unit ``axis`` (Rodrigues)."""
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
 
 
 def _flat(v: np.ndarray, up: np.ndarray) -> np.ndarray:
