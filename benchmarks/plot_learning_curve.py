@@ -77,8 +77,11 @@ def main() -> None:
         print("| " + " | ".join(columns) + " |")
         print("|---:|---:|---:|---:|---:|---:|---:|")
         for r in rows:
+            if math.isnan(r["mean_return"]):  # no episode finished in this period
+                continue
             print(
-                f"| {r['env_steps']:,.0f} | {r['wall_time_s'] / 60:.0f} | {r['episodes']:.0f} | "
+                f"| {r['env_steps']:,.0f} | {r['wall_time_s'] / 60:.0f} | "
+                f"{'-' if math.isnan(r['episodes']) else round(r['episodes'])} | "
                 f"{r['mean_return']:.0f} | {100 * r['mean_reach_success_any']:.0f} % | "
                 f"{100 * r['mean_insert_success_any']:.0f} % | "
                 f"{100 * r['mean_insert_success']:.0f} % |"
