@@ -101,9 +101,9 @@ def test_contact_sensors_report_what_the_contact_list_holds():
     assert seen["pads"] > 0 and seen["table"] > 0  # both kinds of contact were exercised
 
 
-def episode_trace(batched, threads=2, num_envs=3, steps=40):
+def episode_trace(batched, threads=2, num_envs=3, steps=40, **options):
     venv = wirecraft.make_vec(
-        "insertion", num_envs, threads=threads, batched=batched, episode_seconds=0.5
+        "insertion", num_envs, threads=threads, batched=batched, episode_seconds=0.5, **options
     )
     assert venv.batched == batched
     obs, _ = venv.reset(seed=11)
@@ -117,10 +117,18 @@ def episode_trace(batched, threads=2, num_envs=3, steps=40):
     return trace
 
 
-def test_the_batched_step_is_the_per_environment_step():
+@pytest.mark.parametrize(
+    "options",
+    [{}, {"diagnostics": False, "sync_envs": False}],
+    ids=["full", "training"],
+)
+def test_the_batched_step_is_the_per_environment_step(options):
     """Observations, rewards, flags and every info key, through an autoreset (30-step
-    episodes), bit for bit."""
-    batched, single = episode_trace(True), episode_trace(False)
+    episodes), bit for bit; ``training`` also stops the batch one stage earlier (no
+    constraint solve at the new state)."""
+    diagnostics = options.get("diagnostics", True)
+    batched = episode_trace(True, **options)
+    single = episode_trace(False, diagnostics=diagnostics)
     resets = 0
     for (obs_a, rew_a, trunc_a, info_a), (obs_b, rew_b, trunc_b, info_b) in zip(
         batched, single, strict=True
@@ -190,3 +198,53 @@ def test_batched_needs_a_batched_task_and_state_observations():
         wirecraft.make_vec("routing", 1, threads=1, batched=True)
     with pytest.raises(ValueError, match="obs_mode='state'"):
         wirecraft.make_vec("insertion", 1, threads=1, batched=True, obs_mode="rgb", image_size=32)
+
+
+def test_a_latch_engages_and_lets_go_alike_in_every_configuration():
+    """A seated USB-A plug latches, then a 12 N pull (rated 10 N) frees it: the single
+    environment, the synced batched step (full forward pass in the batch) and the training
+    one (the weld force from a forward pass of that environment alone) agree bit for bit."""
+    from wirecraft.envs import env_seed
+    from wirecraft.envs.env import STATE_SPEC
+
+    seed, steps, hold = 3, 30, np.array([0, 0, 0, 0, 0, 0, -1.0])
+
+    def seat(env):
+        task, model, data = env.task, env.model, env.data
+        axis = data.xmat[task.port_id].reshape(3, 3)[:, 0]
+        tip = data.site_xpos[task.seated_site].copy()
+        task.assembly.place(model, data, tip - task.connector.plug_length * axis, axis, 0.0)
+        mujoco.mj_forward(model, data)
+
+    single = wirecraft.make("insertion", connector="usb_a").unwrapped
+    single.reset(seed=env_seed(seed, 0))
+    seat(single)
+    traces = {"single": []}
+    plug = single.task.assembly.plug_id
+    for k in range(steps):
+        single.data.xfrc_applied[plug, :3] = [0.0, -12.0, 0.0] if 15 <= k < 19 else 0.0
+        obs, reward, _, _, info = single.step(hold)
+        traces["single"].append(np.concatenate([obs, [reward, info["latched"]]]))
+    for name, options in (("synced", {}), ("training", {"sync_envs": False})):
+        venv = wirecraft.make_vec(
+            "insertion", 2, threads=1, connector="usb_a", diagnostics=False, **options
+        )
+        venv.reset(seed=seed)
+        env = venv.envs[0]
+        seat(env)
+        if not venv.sync_envs:  # unsynced: the batch's row is the state
+            mujoco.mj_getState(venv.model, env.data, venv.batch.state[0], STATE_SPEC)
+            venv.batch.forward([0])
+        traces[name] = []
+        for k in range(steps):
+            force = [0.0, -12.0, 0.0] if 15 <= k < 19 else 0.0
+            if venv.sync_envs:
+                env.data.xfrc_applied[plug, :3] = force
+            else:
+                venv.batch.xfrc_applied[0, plug, :3] = force
+            obs, reward, _, _, infos = venv.step(np.tile(hold, (2, 1)))
+            traces[name].append(np.concatenate([obs[0], [reward[0], infos["latched"][0]]]))
+    latched = np.array(traces["single"])[:, -1]
+    assert latched[:15].all() and not latched[-1]  # engaged, then freed by the pull
+    for name in ("synced", "training"):
+        np.testing.assert_array_equal(np.array(traces[name]), np.array(traces["single"]))

@@ -44,6 +44,7 @@ from wirecraft.tasks.base import weighted_reward
 from wirecraft.tasks.frame import Frame
 
 ACC = mujoco.mjtStage.mjSTAGE_ACC.value
+VEL = mujoco.mjtStage.mjSTAGE_VEL.value
 
 
 def env_seed(seed: int, index: int) -> int:
@@ -103,6 +104,14 @@ class WireCraftVectorEnv(VectorEnv):
             }
             self.steps = np.zeros(num_envs, int)
             self._incoming = np.empty_like(self.batch.state)
+            # After the substeps the batch computes the new state's positions, contacts and
+            # contact flags (position stage; velocities too, which its next step reuses, so
+            # this costs nothing).  Constraint forces and acceleration-stage sensors need a
+            # full forward pass: for the diagnostics and for synced environments (experts
+            # read the wrist force), in the batch; otherwise only for the environments that
+            # need them (an engaged latch's force), on their own MjData.
+            full = first.diagnostics or self.sync_envs
+            self._end_stage = ACC if full else VEL
 
     # -- gymnasium vector API ---------------------------------------------------------------
     def reset(self, *, seed=None, options: dict | None = None):
@@ -213,7 +222,7 @@ class WireCraftVectorEnv(VectorEnv):
 
         bad = np.zeros(n, bool)
         try:
-            self.batch.step(nstep=SUBSTEPS, stage=ACC)
+            self.batch.step(nstep=SUBSTEPS, stage=self._end_stage)
         except SimulationError as err:
             bad[np.asarray(err.ids, dtype=int)] = True
         self.steps += 1
@@ -231,12 +240,18 @@ class WireCraftVectorEnv(VectorEnv):
 
         frame.cache.clear()  # new positions
         synced = np.zeros(n, bool)
+        eq_stepped = frame.eq_active.copy()  # before the task engages or releases latches
+        forwarded = self._end_stage == ACC
 
         def data_of(i):
-            """Environment i's MjData, brought up to this step (once)."""
+            """Environment i's MjData, brought up to this step (once), its forward pass run
+            with the flags the physics stepped with, as a single environment's is."""
             data = self.envs[i].data
             if not synced[i]:
                 self.batch.get_data(i, data)
+                data.eq_active[:] = eq_stepped[i]
+                if not forwarded and not bad[i]:
+                    mujoco.mj_forward(self.model, data)
                 synced[i] = True
             data.eq_active[:] = frame.eq_active[i]  # the task may have just changed it
             return data
