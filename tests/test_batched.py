@@ -119,8 +119,8 @@ def episode_trace(batched, threads=2, num_envs=3, steps=40, **options):
 
 @pytest.mark.parametrize(
     "options",
-    [{}, {"diagnostics": False, "sync_envs": False}],
-    ids=["full", "training"],
+    [{}, {"diagnostics": False, "sync_envs": False}, {"sync_envs": False}],
+    ids=["full", "training", "diagnostics-unsynced"],
 )
 def test_the_batched_step_is_the_per_environment_step(options):
     """Observations, rewards, flags and every info key, through an autoreset (30-step
@@ -154,7 +154,7 @@ def test_the_batched_step_is_the_per_environment_step(options):
 
 def test_synced_environments_mirror_the_batch_and_unsynced_ones_do_not_cost_a_copy():
     synced = wirecraft.make_vec("insertion", 2, threads=1)
-    lazy = wirecraft.make_vec("insertion", 2, threads=1, sync_envs=False)
+    lazy = wirecraft.make_vec("insertion", 2, threads=1, sync_envs=False, diagnostics=False)
     for venv in (synced, lazy):
         venv.reset(seed=2)
         for _ in range(3):

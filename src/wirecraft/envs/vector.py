@@ -271,7 +271,7 @@ class WireCraftVectorEnv(VectorEnv):
 
         infos: dict = {name: np.array(values) for name, values in core.items()}
         if first.diagnostics:
-            rows = [env.task.diagnostics(self.model, env.data) for env in self.envs]
+            rows = [env.task.diagnostics(self.model, data_of(i)) for i, env in enumerate(self.envs)]
             for name in rows[0]:
                 infos[name] = np.array([row[name] for row in rows], dtype=float)
         infos["diverged"] = bad.copy()
