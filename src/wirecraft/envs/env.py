@@ -255,7 +255,7 @@ class WireCraftEnv(gym.Env):
         other.data = mujoco.MjData(self.model)
         other.robot = copy.copy(self.robot)
         other.task = copy.copy(self.task)
-        for cache in ("_memo", "_frame", "_frame_key"):  # per-environment caches are not shared
+        for cache in ("_frame", "_frame_key"):  # per-environment caches are not shared
             other.task.__dict__.pop(cache, None)
         other.controller = make_controller(
             self.control_name, other.robot, self.model, ControlConfig(substeps=SUBSTEPS)

@@ -179,24 +179,6 @@ class Task(ABC):
         return self.assembly.wire.points(model, data)
 
     # -- helpers shared by task families ----------------------------------------------------
-    def memo(self, data, name: str, compute):
-        """``compute()`` once per simulation state: observation, reward and success all ask for
-        the same geometry within a step.  Keyed on time, positions and mocap poses, so a state
-        written by hand is never served a stale answer."""
-        key = (
-            name,
-            data.time,
-            data.qpos.tobytes(),
-            data.mocap_pos.tobytes(),
-            data.mocap_quat.tobytes(),
-        )
-        cache = self.__dict__.setdefault("_memo", {})
-        if key not in cache:
-            if len(cache) > 64:
-                cache.clear()
-            cache[key] = compute()
-        return cache[key]
-
     def to_base(self, data, points: np.ndarray) -> np.ndarray:
         """World points (..., 3) in the robot base frame."""
         origin = data.site_xpos[self.base_site]
@@ -288,7 +270,13 @@ class BatchedTask(Task):
     def frame_of(self, data) -> Frame:
         """``data`` as a frame of one; the same frame (and its cached geometry) while the
         positions are unchanged, so one step's hooks share their computations."""
-        key = (id(data), data.time, data.qpos.tobytes(), data.mocap_pos.tobytes())
+        key = (
+            id(data),
+            data.time,
+            data.qpos.tobytes(),
+            data.mocap_pos.tobytes(),
+            data.mocap_quat.tobytes(),
+        )
         if self.__dict__.get("_frame_key") != key:
             self._frame = Frame.of_data(data)
             self._frame_key = key

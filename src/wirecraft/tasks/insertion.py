@@ -184,20 +184,11 @@ class InsertionTask(BatchedTask):
         data.eq_active[self.retention_eqs] = 0
 
     # -- geometry ---------------------------------------------------------------------------
-    def _port_frame(self, data):
-        rot = data.xmat[self.port_id].reshape(3, 3)
-        return data.site_xpos[self.entry_site].copy(), rot
-
     def seating_errors(self, data) -> dict[str, float]:
         """Axial error (m to go along the socket axis), lateral error (m off the axis), depth
         (m past the mouth), roll error (rad, modulo the connector's symmetry) and axis error."""
-        return self.memo(
-            data,
-            "seating_errors",
-            lambda: {
-                k: float(v[0]) for k, v in self.seating_errors_batch(Frame.of_data(data)).items()
-            },
-        )
+        errors = self.seating_errors_batch(self.frame_of(data))
+        return {name: float(values[0]) for name, values in errors.items()}
 
     def seating_errors_batch(self, frame: Frame) -> dict[str, np.ndarray]:
         """``seating_errors`` of N simulations, each (N,) (computed once per frame state)."""
