@@ -26,7 +26,9 @@ def main() -> None:
     parser.add_argument("--num-clips", "--clips", type=int, default=1, choices=(1, 2, 3))
     parser.add_argument("--episodes", "--seeds", type=int, default=20)
     parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--episode-seconds", type=float, default=8.0)
+    parser.add_argument(
+        "--episode-seconds", type=float, default=None, help="default: the task's (8 s per clip)"
+    )
     parser.add_argument("--robot", default="ur5")
     parser.add_argument("--wire", default="articulated")
     parser.add_argument("--verbose", action="store_true", help="print every episode's phases")

@@ -518,6 +518,24 @@ def test_episode_is_480_control_steps_of_one_sixtieth_second(task):
     env.reset(seed=1)
     _, _, _, truncated, _ = env.step(action)
     assert not truncated
+
+
+@pytest.mark.parametrize("num_clips", [1, 2, 3])
+def test_routing_episodes_give_each_clip_a_one_clip_episode(num_clips):
+    from wirecraft.envs.env import default_episode_seconds
+
+    env = make("routing", num_clips=num_clips)
+    assert env.unwrapped.max_steps == EPISODE_STEPS * num_clips
+    assert default_episode_seconds("routing", num_clips=num_clips, robot="ur5") == pytest.approx(
+        EPISODE_STEPS * num_clips * CONTROL_DT
+    )
+    env.close()
+    # An explicit length wins over the task's.
+    env = make("routing", num_clips=num_clips, episode_seconds=2.0)
+    assert env.unwrapped.max_steps == 120
+    env.close()
+    with pytest.raises(ValueError, match="episode_seconds"):
+        make("routing", num_clips=num_clips, episode_seconds=0.0)
     env.close()
 
 

@@ -234,3 +234,13 @@ def test_eval_command_rejects_flags_of_other_tasks(capsys):
     code = cli.main(["eval", "--task", "insertion", "--num-clips", "2", "--quiet"])
     assert code == 2
     assert "--num-clips does not apply to the insertion task" in capsys.readouterr().err
+
+
+def test_protocol_horizon_is_the_task_variants_episode_length():
+    """Without ``episode_seconds`` the protocol runs each variant for its own episode length
+    (routing: 8 s per clip), and says so in the payload."""
+    payload = protocol.run_evaluation(
+        "routing", "zero", seeds=1, episodes=1, num_clips=2, progress=False
+    ).payload
+    assert payload["protocol"]["episode_steps"] == 2 * 480
+    assert payload["episodes"][0]["steps"] == 2 * 480

@@ -1,7 +1,8 @@
 """The gymnasium environment: one task, one robot, one wire model, one control mode.
 
 Timing: physics at 1/480 s, 8 substeps per control step: exactly 60 Hz; an 8 s episode is 480
-control steps.  (1/480 s is within 5% of the 2 ms at which the wire physics was validated.)
+control steps (the default; routing gets 8 s per clip, see ``Task.episode_seconds``).
+(1/480 s is within 5% of the 2 ms at which the wire physics was validated.)
 
 Divergence: after every control step the state is checked (finite; linear and angular speeds
 below ``MAX_LINEAR_SPEED`` and ``MAX_ANGULAR_SPEED``); a diverged step is rolled back to the
@@ -52,6 +53,19 @@ def _add_wrist_sensor(spec: mujoco.MjSpec, hand_body: str) -> None:
         spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="wrist_ft")
 
 
+def default_episode_seconds(task: str, **env_kwargs: Any) -> float:
+    """The episode length ``WireCraftEnv(task, **env_kwargs)`` gets when ``episode_seconds``
+    is not given, without building the environment."""
+    import inspect
+
+    own = set(inspect.signature(WireCraftEnv.__init__).parameters)
+    task_kwargs = {k: v for k, v in env_kwargs.items() if k not in own}
+    try:
+        return TASKS.get(task)(**task_kwargs).episode_seconds
+    except TypeError as err:
+        raise ValueError(f"{task}: invalid keyword argument: {err}") from None
+
+
 def _speed_limits(model: mujoco.MjModel) -> np.ndarray:
     """(nv,) the speed above which each DOF counts as diverged: m/s or rad/s by DOF kind."""
     limits = np.full(model.nv, MAX_ANGULAR_SPEED)
@@ -76,7 +90,7 @@ class WireCraftEnv(gym.Env):
         obs_mode: str = "state",
         image_size: int = 224,
         render_mode: str | None = None,
-        episode_seconds: float = 8.0,
+        episode_seconds: float | None = None,
         wire_config: WireConfig | None = None,
         diagnostics: bool = True,
         **task_kwargs: Any,
@@ -89,13 +103,16 @@ class WireCraftEnv(gym.Env):
         validation.one_of("WireCraftEnv", "obs_mode", obs_mode, OBS_MODES)
         validation.one_of("WireCraftEnv", "render_mode", render_mode, RENDER_MODES)
         validation.at_least_int("WireCraftEnv", "image_size", image_size, 16)
-        validation.positive("WireCraftEnv", "episode_seconds", episode_seconds)
+        if episode_seconds is not None:
+            validation.positive("WireCraftEnv", "episode_seconds", episode_seconds)
         try:
             self.task = task_cls(**task_kwargs)
         except TypeError as err:
             raise ValueError(f"{task}: invalid keyword argument: {err}") from None
         self.robot_name, self.wire_name, self.control_name = robot, wire, control
         self.obs_mode, self.image_size, self.render_mode = obs_mode, image_size, render_mode
+        if episode_seconds is None:
+            episode_seconds = self.task.episode_seconds
         self.max_steps = int(round(episode_seconds * CONTROL_HZ))
         # False: info leaves out the force and cable diagnostics (per-environment contact
         # walks that RL training never reads; the vector environment is faster without them).

@@ -32,7 +32,12 @@ def configure(p: argparse.ArgumentParser, add_task_args) -> None:
         help="evaluate on a fresh seed list derived from this number (held-out check) instead "
         "of the frozen public list",
     )
-    p.add_argument("--episode-seconds", type=float, default=8.0, help="episode length (s)")
+    p.add_argument(
+        "--episode-seconds",
+        type=float,
+        default=None,
+        help="episode length (s); default: the task's (8 s; routing 8 s per clip)",
+    )
     p.add_argument(
         "--retain-force",
         type=float,

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from wirecraft.envs.env import CONTROL_HZ
+from wirecraft.envs.env import CONTROL_HZ, default_episode_seconds
 from wirecraft.evaluation import diagnostics, retention
 from wirecraft.evaluation.policies import (
     load_policy,
@@ -40,7 +40,6 @@ from wirecraft.evaluation.seeds import (
     variant_key,
 )
 
-DEFAULT_EPISODE_SECONDS = 8.0
 METRICS = {
     "insertion": ("success", "reach_success", "insert_success", "retain_success", "success_at_end"),
     "routing": ("success", "retain_success", "success_at_end"),
@@ -398,7 +397,7 @@ def run_evaluation(
     episodes: int = REFERENCE_EPISODES,
     workers: int = 1,
     seed: int | None = None,
-    episode_seconds: float = DEFAULT_EPISODE_SECONDS,
+    episode_seconds: float | None = None,
     retain_force: float = retention.DEFAULT_FORCE,
     batch: int | None = None,
     ray_address: str | None = None,
@@ -416,7 +415,9 @@ def run_evaluation(
     for name, value in (("seeds", seeds), ("episodes", episodes), ("workers", workers)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    if not (isinstance(episode_seconds, (int, float)) and episode_seconds > 0):
+    if episode_seconds is not None and not (
+        isinstance(episode_seconds, (int, float)) and episode_seconds > 0
+    ):
         raise ValueError(f"episode_seconds must be > 0, got {episode_seconds!r}")
     if not (math.isfinite(retain_force) and retain_force >= 0):
         raise ValueError(f"retain_force must be >= 0 newtons, got {retain_force!r}")
@@ -424,6 +425,8 @@ def run_evaluation(
         raise ValueError("evaluation renders its own videos: do not pass render_mode")
     policy_spec = policy_spec if callable(policy_spec) else str(policy_spec)
     merged = resolve_env_kwargs(family, policy_spec, env_kwargs)
+    if episode_seconds is None:  # the task variant's own length (routing: 8 s per clip)
+        episode_seconds = default_episode_seconds(family, **merged)
     lists = episode_seeds(family, merged, seeds, episodes, held_out=seed)
     specs = [EpisodeSpec(s, e, lists[s][e]) for s in range(seeds) for e in range(episodes)]
     total = len(specs)

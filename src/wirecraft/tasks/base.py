@@ -51,6 +51,9 @@ from wirecraft.sensors import (
 )
 from wirecraft.tasks.frame import Frame
 
+# Episode length unless the task or the user says otherwise.
+EPISODE_SECONDS = 8.0
+
 TASKS: Registry[type[Task]] = Registry("task")
 
 
@@ -75,6 +78,12 @@ class Task(ABC):
                 )
             self.weights[key] = float(value)
         self.robot: RobotHandle | None = None
+
+    @property
+    def episode_seconds(self) -> float:
+        """The default episode length of this task variant (``WireCraftEnv(episode_seconds=
+        None)`` and the evaluation protocol use it)."""
+        return EPISODE_SECONDS
 
     @property
     @abstractmethod

@@ -40,7 +40,7 @@ from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ClipConfig, PlacedClip, add_clip
 from wirecraft.sensors import body_geom_ids, mat_to_quat
 from wirecraft.tasks.assembly import WireAssembly, resample
-from wirecraft.tasks.base import TASKS, Task, shaped
+from wirecraft.tasks.base import EPISODE_SECONDS, TASKS, Task, shaped
 
 LANE_X = 0.10  # m
 LANE_JITTER = 0.06  # m across the lane
@@ -117,6 +117,12 @@ class RoutingTask(Task):
         self.layout = LAYOUTS[num_clips]
         self.clip_opening = clip_opening
         self.connector = make_connector(connector)
+
+    @property
+    def episode_seconds(self) -> float:
+        # Each clip is its own grasp-route-release cycle (the route re-grasps between clips),
+        # so every clip gets the time of a one-clip episode.
+        return EPISODE_SECONDS * self.num_clips
 
     @property
     def instruction(self) -> str:
