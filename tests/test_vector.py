@@ -124,6 +124,9 @@ def test_partial_reset_touches_only_the_masked_environments():
         ({"backend": "gpu"}, "backend"),
         ({"num_envs": 2.5}, "num_envs"),
         ({"arrays": "jax"}, "unknown arrays"),
+        ({"sync_envs": "false"}, "sync_envs must be True or False"),
+        ({"batched": 0}, "batched must be True or False"),
+        ({"diagnostics": "no"}, "diagnostics must be True or False"),
     ],
 )
 def test_bad_arguments(kwargs, match):

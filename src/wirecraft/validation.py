@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
+import numpy as np
+
 
 def _finite(owner: str, field: str, value: float) -> float:
     try:
@@ -46,6 +48,13 @@ def at_least_int(owner: str, field: str, value: int, low: int) -> int:
     if value < low:
         raise ValueError(f"{owner}.{field} must be >= {low}, got {value!r}")
     return value
+
+
+def boolean(owner: str, field: str, value: object) -> bool:
+    # A string such as "false" would otherwise read as True.
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{owner}.{field} must be True or False, got {value!r}")
+    return bool(value)
 
 
 def one_of(owner: str, field: str, value: object, allowed: Iterable[object]) -> object:

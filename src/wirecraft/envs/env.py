@@ -103,6 +103,7 @@ class WireCraftEnv(gym.Env):
         validation.one_of("WireCraftEnv", "obs_mode", obs_mode, OBS_MODES)
         validation.one_of("WireCraftEnv", "render_mode", render_mode, RENDER_MODES)
         validation.at_least_int("WireCraftEnv", "image_size", image_size, 16)
+        validation.boolean("WireCraftEnv", "diagnostics", diagnostics)
         if episode_seconds is not None:
             validation.positive("WireCraftEnv", "episode_seconds", episode_seconds)
         try:

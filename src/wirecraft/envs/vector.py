@@ -66,6 +66,9 @@ class WireCraftVectorEnv(VectorEnv):
     ) -> None:
         validation.at_least_int("make_vec", "num_envs", num_envs, 1)
         validation.at_least_int("make_vec", "threads", threads, 0)
+        validation.boolean("make_vec", "sync_envs", sync_envs)
+        if batched is not None:
+            validation.boolean("make_vec", "batched", batched)
         if kwargs.get("render_mode") == "human":
             raise ValueError("make_vec: render_mode='human' is for single environments")
         first = WireCraftEnv(task, **kwargs)
