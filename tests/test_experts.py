@@ -193,6 +193,10 @@ def test_config_validation():
         InsertionExpertConfig(force_hold=1.5)
     with pytest.raises(ValueError, match="force_backoff"):
         InsertionExpertConfig(force_backoff=0.0)
+    with pytest.raises(ValueError, match="sag_gain"):
+        InsertionExpertConfig(sag_gain=-0.1)
+    with pytest.raises(ValueError, match="sag_limit"):
+        InsertionExpertConfig(sag_limit=-0.001)
 
 
 # -- other robots ------------------------------------------------------------------------------
@@ -203,6 +207,36 @@ def test_other_robots_seat_the_plug(robot):
     for seed in (0, 2):
         _, phases, info = _episode(env, expert, seed=seed)
         assert info["insert_success"], (robot, seed, phases)
+    env.close()
+
+
+def _pre_insert_outcome(env, config, seed: int):
+    """(steps spent in pre_insert, whether it ended by its timeout rather than its
+    tolerance), for the first pre-insertion of a seeded episode."""
+    expert = InsertionExpert(env, config)
+    env.reset(seed=seed)
+    expert.reset(seed=seed)
+    steps = 0
+    for _ in range(env.unwrapped.max_steps):
+        before = expert.phase_names[0]
+        env.step(expert.act()[0])
+        if before == "pre_insert":
+            steps += 1
+            if expert.phase_names[0] != "pre_insert":
+                return steps, bool(expert.fsm.timed_out[0])
+    raise AssertionError(f"pre_insert never ended (phase {expert.phase_names[0]})")
+
+
+def test_integral_action_brings_a_sagging_arm_within_the_pre_insert_tolerance():
+    """On seed 5 the WidowX AI's servos sag ~2 mm under the held plug, beyond the 1.5 mm
+    tolerance of pre_insert: without the integral offset the phase runs into its timeout;
+    with it, the tolerance is met well before."""
+    env = wirecraft.make("insertion", robot="wxai", connector="ethernet")
+    plain = InsertionExpertConfig(release=False, diversity=False, sag_gain=0.0)
+    steps, timed_out = _pre_insert_outcome(env, plain, seed=5)
+    assert timed_out, steps
+    steps, timed_out = _pre_insert_outcome(env, HOLD, seed=5)
+    assert not timed_out and steps < 120, steps
     env.close()
 
 

@@ -191,6 +191,12 @@ class ScriptedExpert:
     def _on_advance(self, advanced: np.ndarray, before: np.ndarray) -> None:
         del advanced, before
 
+    def _command_offset(self, i, goal_pos, view):
+        """Where to aim the controller relative to the phase goal (m, base frame); the
+        phase's tolerance is still judged on the goal itself."""
+        del i, goal_pos, view
+        return 0.0
+
     def act(self, observations=None) -> np.ndarray:
         """(N, action_dim) actions for the current states (privileged state; ``observations``
         unused)."""
@@ -213,7 +219,8 @@ class ScriptedExpert:
                 rot_err[i] = rotation_angle(goal_rot, tcp_rot)
             if own is not None:
                 own_mask[i], own_value[i] = True, own
-            step_goal = step_toward(target_pos, goal_pos, speed)
+            command = goal_pos + self._command_offset(i, goal_pos, view)
+            step_goal = step_toward(target_pos, command, speed)
             actions[i] = servo_action(env.controller, step_goal, goal_rot, gripper)
         before = self.fsm.phase.copy()
         reached = np.where(own_mask, own_value, self.fsm.within(pos_err, rot_err))
