@@ -1,10 +1,13 @@
 """Success of the seating expert over seeds, per channel shape:
 python benchmarks/eval_seating_expert.py --channels straight,curved --seeds 100
-[--wire articulated] [--first-seed 0] [--verbose]."""
+[--wire articulated] [--robot ur5] [--first-seed 0] [--verbose] [--set lay_turn=False ...]
+(``--set`` overrides ``SeatingExpertConfig`` fields, for comparing variants)."""
 
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
 import time
 
 import numpy as np
@@ -41,6 +44,19 @@ def run_episode(env, expert, seed: int, verbose: bool) -> dict:
     }
 
 
+def parse_overrides(items: list[str]) -> dict:
+    fields = {f.name for f in dataclasses.fields(SeatingExpertConfig)}
+    overrides = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in fields:
+            raise ValueError(
+                f"--set expects FIELD=VALUE with FIELD one of {sorted(fields)}, got {item!r}"
+            )
+        overrides[name] = ast.literal_eval(value)
+    return overrides
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--channels", default="straight,curved")
@@ -50,11 +66,25 @@ def main() -> None:
     parser.add_argument("--wire", default="articulated")
     parser.add_argument("--expert-seed", type=int, default=0)
     parser.add_argument("--verbose", action="store_true")
+    parser.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="override SeatingExpertConfig fields (Python literals)",
+    )
     args = parser.parse_args()
+    overrides = parse_overrides(args.set)
     summary = []
     for channel in args.channels.split(","):
-        env = wirecraft.make("seating", channel=channel, robot=args.robot, wire=args.wire)
-        expert = SeatingExpert(env, SeatingExpertConfig(seed=args.expert_seed))
+        env = wirecraft.make(
+            "seating",
+            channel=channel,
+            robot=args.robot,
+            wire=args.wire,
+            control=SeatingExpert.CONTROL,
+        )
+        expert = SeatingExpert(env, SeatingExpertConfig(seed=args.expert_seed, **overrides))
         start = time.time()
         episodes = []
         seeds = range(args.first_seed, args.first_seed + args.seeds)
@@ -71,7 +101,8 @@ def main() -> None:
         rate = np.mean([e["success"] for e in episodes])
         fractions = np.array([e["fraction"] for e in episodes])
         summary.append(
-            f"{args.robot} {args.wire} {channel}: success {rate:.1%} over {len(episodes)} seeds, "
+            f"{args.robot} {args.wire} {channel} {' '.join(args.set)}: success {rate:.1%} "
+            f"over {len(episodes)} seeds, "
             f"fraction inside mean {fractions.mean():.3f} min {fractions.min():.3f} "
             f"({time.time() - start:.0f} s)"
         )

@@ -159,7 +159,7 @@ def test_random_policy_actions_follow_the_episode_seed():
 
 def test_policy_specs_declare_what_the_environment_needs():
     assert policy_env_kwargs("scripted", "insertion") == {"control": "cartesian"}
-    assert policy_env_kwargs("scripted", "seating") == {"control": "cartesian_fixed"}
+    assert policy_env_kwargs("scripted", "seating") == {"control": "cartesian"}
     assert policy_env_kwargs("zero", "routing") == {}
     with pytest.raises(ValueError, match="needs control='cartesian'"):
         protocol.resolve_env_kwargs("insertion", "scripted", {"control": "joint"})

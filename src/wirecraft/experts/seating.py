@@ -1,4 +1,4 @@
-"""Scripted expert for channel seating (``WireCraft/ChannelSeating-v0``, ``cartesian_fixed``).
+"""Scripted expert for channel seating (``WireCraft/ChannelSeating-v0``, ``cartesian`` control).
 
 What it reads (privileged; per environment ``env = env_or_envs.unwrapped``, never the task's
 success flags or ``fraction_inside``):
@@ -7,46 +7,63 @@ success flags or ``fraction_inside``):
 - ``env.task.assembly``: ``plug_pose(data)`` (plug origin: the wire end at the back of the
   tail) and the ``grasp_site`` (middle of the tail); ``wire.config.radius``;
 - ``env.task``: ``placed`` (the channel of this episode: ``pos``, ``yaw`` and ``config`` with
-  its ``centerline`` and ``floor``), ``plug_lead`` (wire between the channel's end and the
-  plug when seated) and ``pad_contacts(model, data, held_contacts)`` (both pads on the plug);
+  its ``centerline``, ``floor`` and ``wall_height``), ``plug_lead`` (wire between the
+  channel's end and the plug when seated), ``tcp_site`` and
+  ``pad_contacts(model, data, held_contacts)`` (both pads on the plug);
 - ``env.robot``: ``tcp_pose_base(model, data)``, ``gripper_opening``, ``gripper_velocity``,
   ``max_opening``, ``pad_geom_names`` (the pressing pad's box: ``model.geom_size``,
   ``data.geom_xpos/xmat``);
 - ``env.wire_points()``: the wire's centre line (only to decide whether to press);
 - ``env.controller``: its own target and base frame, through ``wirecraft.control.servo_action``.
 
-The TCP orientation is the one ``cartesian_fixed`` holds (pointing down, pads closing along the
-base y axis, across the channel's first segment); every goal is a TCP position in the robot
-base frame, and every phase moves the controller's target at most a few millimetres per step
-(``SeatingExpertConfig`` speeds: finer than the controller's 1 cm per step).
+Control mode: ``cartesian`` (7-d actions), although the task's default is ``cartesian_fixed``
+(SPEC: each scripted policy selects the control mode best suited to its task).  Every phase
+up to the pressing pass holds the episode's start orientation (pointing down, pads closing
+along the base y axis, across the channel's first segment), exactly as ``cartesian_fixed``
+would; only the pressing pass turns the TCP about the vertical so the pressing pad follows
+the channel (why: below).  Every goal is a TCP pose in the robot base frame, and every phase
+moves the controller's target at most a few millimetres per step (``SeatingExpertConfig``
+speeds: finer than the controller's 1 cm per step).
 
 Phases (``PHASES``): approach (above the tail) -> descend -> settle (pads open and still for a
 randomized delay: the gentle, delayed grasp) -> close -> lift (straight up) -> carry (the plug
 to above the channel's path, ``lay_from`` metres of arc before its end) -> lay (the plug follows
 the channel's centre line to ``plug_lead`` beyond its end while coming down, slowly, so the
 wire behind it drops between the walls) -> place (the wire end down to the height of a wire
-resting on the channel floor) -> release -> retreat -> done, or, when a wire point still rides
-``press_needed`` above resting on the floor (the expert's own geometric check), the pressing
-pass: press_approach -> press_descend -> press -> press_retreat, repeated (one pass per entry
-of ``press_directions``) while the check still sees a raised wire, -> done.  A grasp that does not
-hold after the lift sends the environment back to ``approach`` (at most ``max_grasp_retries``
-times).
+resting on the channel floor) -> release (pads ``release_open`` apart) -> retreat -> done, or,
+when a wire point still rides ``press_needed`` above resting on the floor (the expert's own
+geometric check), the pressing pass: press_approach -> press_descend -> press ->
+press_retreat, repeated (one pass per entry of ``press_directions``) while the check still
+sees a raised wire, -> done.  A grasp that does not hold after the lift sends the
+environment back to ``approach`` (at most ``max_grasp_retries`` times).
 
 Pressing pass (why: held only at the bolted clamp and the plug, the stiff wire keeps one smooth
-shape that bridges the curved channel's bends on the wall tops).  With the pads open, one pad
-(its 22 x 6 mm bottom face; the TCP orientation is fixed) slides along the channel's centre
-line from ``press_from`` past the entry to ``press_stop`` before the end.  Where its whole
-footprint fits between the walls (the channel runs within ~16 deg of the pad's long axis, base
-x) it goes down to the top of a seated wire (``press_squeeze``) and pushes the wire onto the
-floor, where the walls then hold it; elsewhere (and ``press_window`` of arc around such
-stretches) it passes ``press_clearance`` above the wall tops.  The height profile is computed
-once per episode from the channel geometry and the pad's box in the model
-(``_press_heights``).  A second pass (same direction, 5 mm per step so both fit in the
-episode) seats stretches that the first pass left raised: each pass pushes more of the wire
-between the walls, and what is already down stays down (tuning seeds 0-49: one pass at 3 mm
-per step 33/50, two passes 40/50).  Passes from the end back towards the entry were tried and
-are worse (9/20 and 12/20 against 16/20 for two forward passes, seeds 0-19): pressing from the
-end pins the wire's free end first, so the slack the pad pushes along has nowhere to go.
+shape that bridges the curved channel's bends on the wall tops; pressed onto the floor, a
+stretch stays there, held by the walls).  With the pads open, one pad (its 22 x 6 mm bottom
+face) slides along the channel's centre line from ``press_from`` past the entry to
+``press_stop`` before the end, its long side turned onto the channel's heading: the TCP yaw
+(about the vertical, from the start orientation) follows the heading through a dead band of
+``press_yaw_slack`` (smaller bends need no turn) averaged over ``press_turn_window`` of arc
+(gradual turns through the bends), and the pad slows down where that profile turns faster than
+``press_turn_rate`` per step.  Where the turned footprint fits between the walls it goes down
+to the top of a seated wire (``press_squeeze``) and pushes the wire onto the floor; elsewhere
+(and ``press_window`` of arc around) it passes ``press_clearance`` above the wall tops.  The
+profile (heights and yaws) is computed once per episode from the channel geometry and the
+pad's box in the model (``_press_profile``).  Held at the start orientation (the
+``cartesian_fixed`` design) the pad fits only where the channel runs within ~16 deg of base x
+(22 sin(a) + 6 cos(a) <= 12 mm): curved tuning seeds 0-49, 40/50 with two such passes; turned,
+it fits along ~85% of the channel and one pass usually suffices (46/50; held-out seeds
+1000-1099: 82%, against 75% fixed).  While the pad lags more than ``press_lag`` behind its
+goal the goal slows down (``press_lag_slowdown``): chasing a goal far ahead, the pad would
+cut the bends into the walls.  Between the
+release and the pass the pads travel ``press_hover`` above the wall tops, and the release opens
+them wide, so that neither the plug nor the wire near it rides along.  Passes from the end back
+towards the entry were tried (fixed orientation) and are worse: pressing from the end pins the
+wire's free end first, so the slack the pad pushes along has nowhere to go.
+
+``lay_turn`` (off; tried) also turns the held plug onto the channel's last segment during
+carry, lay and place: worse (5 failures in the first 26 tuning seeds against 3 in 50), and the
+turns there and back cost up to ~140 steps.
 
 Diversity (from ``config.seed``): the settle delay before closing and the lay's speed (a
 per-episode slow-down factor) are drawn per episode.
@@ -59,6 +76,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wirecraft.assets.robots.kinematics import axis_angle_to_mats
 from wirecraft.experts.base import ScriptedExpert
 from wirecraft.experts.fsm import Phase
 
@@ -72,6 +90,9 @@ class SeatingExpertConfig:
     hover: float = 0.05  # m above the grasp point where the approach ends
     grasp_height: float = 0.010  # m: TCP above the table when grasping (pads 2 mm clear)
     pre_open: float = 0.04  # m: pad gap while approaching and settling
+    # m: pad gap when releasing the plug (capped at the robot's): wide enough that a plug held
+    # at a slant across the pads drops out instead of riding up with them
+    release_open: float = 0.08
     settle_steps: int = 6  # control steps with the pads open and still before closing
     settle_jitter: int = 12  # + uniform 0..jitter extra steps (delayed-grasp diversity)
     lift: float = 0.06  # m: TCP height above the table after the lift
@@ -82,6 +103,7 @@ class SeatingExpertConfig:
     descend_speed: float = 0.004  # m per step
     lift_speed: float = 0.004  # m per step
     carry_speed: float = 0.006  # m per step
+    lay_turn: bool = False  # turn the held plug onto the channel's last segment (carry .. place)
     lay_speed: float = 0.002  # m per step along the path (before the slow-down)
     lay_slowdown: tuple[float, float] = (1.0, 1.6)  # per-episode lay time factor (diversity)
     place_speed: float = 0.001  # m per step
@@ -89,12 +111,26 @@ class SeatingExpertConfig:
     press_from: float = 0.03  # m of path arc (from the entry) where the pressing pass starts
     press_clearance: float = 0.0015  # m: pad bottom above the wall tops where it cannot fit
     press_squeeze: float = 0.0005  # m: pad bottom below a seated wire's top where it fits
-    press_margin: float = 0.0  # m: the pad's footprint stays this far inside the walls
+    press_margin: float = 0.0005  # m: the pad's footprint stays this far inside the walls
     press_window: float = 0.006  # m of arc: the pad rises this far before a misfit
     press_stop: float = 0.005  # m of arc before the channel's end where the pass ends
     press_needed: float = 0.003  # m: a wire point this far above resting calls for pressing
     press_hover: float = 0.02  # m: pad bottoms above the press height before coming down
-    press_speed: float = 0.005  # m per step along the path
+    # m: farther than this (horizontally) from the pass's start, the pads travel press_travel
+    # above the wall tops
+    press_travel_reach: float = 0.01
+    press_travel: float = 0.04  # m: pad bottoms above the wall tops while travelling
+    press_open: float = 0.04  # m: pad gap while pressing (the other pad passes beside)
+    press_speed: float = 0.005  # m per step along the path (slower where the pad turns)
+    press_lag: float = 0.008  # m: the pad's goal slows down while the pad is farther behind it
+    press_lag_slowdown: float = 0.25  # speed factor then
+    # The pad's yaw follows the channel's heading averaged over this much arc either side, so
+    # it turns gradually through the bends (it fits within ~16 deg of the local heading).
+    press_turn_window: float = 0.02  # m of arc
+    # The pad turns only as far as it must: its yaw stays within this angle of the channel's
+    # heading (a dead band; smaller bends need no turn at all).
+    press_yaw_slack: float = math.radians(8.0)
+    press_turn_rate: float = 0.008  # rad per step at most (the controller's limit is 0.01)
     final_retreat: float = 0.05  # m straight up after the pressing pass
     # Direction of each pressing pass (+1: from the entry towards the end, -1: back from the
     # end); a pass starts only while a wire point still rides high.
@@ -133,12 +169,17 @@ class SeatingExpert(ScriptedExpert):
     """Vectorized scripted expert for the seating task (N environments, N = 1 for one env).
 
     ``reset(env_ids)`` after the environments are reset (a vector env's autoreset included);
-    ``act()`` returns the (N, 4) ``cartesian_fixed`` actions for the current states.
+    ``act()`` returns the (N, 7) ``cartesian`` actions for the current states.
     """
 
     PHASES = PHASES
-    SNAPSHOTS = (("grasp_pos", (3,)), ("lift_from", (3,)), ("hold_pos", (3,)))
-    CONTROL = "cartesian_fixed"
+    SNAPSHOTS = (
+        ("grasp_pos", (3,)),
+        ("lift_from", (3,)),
+        ("hold_pos", (3,)),
+        ("start_rot", (3, 3)),
+    )
+    CONTROL = "cartesian"
     TASK = "seating"
     config_class = SeatingExpertConfig
 
@@ -150,7 +191,7 @@ class SeatingExpert(ScriptedExpert):
         self.lay_arc = np.zeros(self.num_envs)  # arc of the channel the plug has been laid to
         self.press_arc = np.zeros(self.num_envs)  # arc the pressing pad has reached
         self.press_count = np.zeros(self.num_envs, int)  # pressing passes started
-        self._press_profile: list = [None] * self.num_envs
+        self._profiles: list = [None] * self.num_envs
 
     def _reset_state(self, mask) -> None:
         cfg, count = self.config, int(mask.sum())
@@ -159,7 +200,7 @@ class SeatingExpert(ScriptedExpert):
         self.press_arc[mask] = 0.0
         self.press_count[mask] = 0
         for i in np.flatnonzero(mask):
-            self._press_profile[i] = None
+            self._profiles[i] = None
         self.settle_needed[mask] = cfg.settle_steps + self.rng.integers(
             0, cfg.settle_jitter + 1, count
         )
@@ -216,15 +257,17 @@ class SeatingExpert(ScriptedExpert):
         return self.envs[i].task.assembly.wire.config.radius + self.config.place_above
 
     # -- control -------------------------------------------------------------------------------
-    def _open_command(self, i) -> float:
+    def _open_command(self, i, gap: float | None = None) -> float:
+        """Gripper command for a pad gap (m; default ``pre_open``), capped at the robot's."""
         env = self.envs[i]
-        gap = min(self.config.pre_open, env.robot.max_opening)
+        gap = min(self.config.pre_open if gap is None else gap, env.robot.max_opening)
         return 1.0 - 2.0 * gap / env.robot.max_opening
 
     def _goals(self, i):
-        """(goal TCP position (base frame), None (hold the orientation), max step (m), gripper,
-        own reached flag or None)."""
+        """(goal TCP position (base frame), goal orientation (base frame; None: hold the
+        controller's), max step (m), gripper, own reached flag or None)."""
         cfg, env, fsm = self.config, self.envs[i], self.fsm
+        self._start_rot(i)  # captured at the episode's first step
         name = fsm.phases[fsm.phase[i]].name
         up = self._base(i)[1].T @ UP
         opened = self._open_command(i)
@@ -254,45 +297,68 @@ class SeatingExpert(ScriptedExpert):
             return goal, None, cfg.lift_speed, 1.0, None
 
         # From here on the goals place the plug's wire end; the TCP keeps its offset to it
-        # (re-measured each step: the plug may turn in the pads).
-        offset = self._tcp(i)[0] - self._plug_origin(i)
+        # (re-measured each step in the TCP frame: the plug may turn in the pads) and turns
+        # so that the pads' long side, along which the plug is held, follows the channel's
+        # last segment: the wire leaves the plug along the channel, between the pads.
+        tcp, tcp_rot = self._tcp(i)
+        rot = self._yawed(i, self._lay_yaw(i)) if cfg.lay_turn else tcp_rot
+        offset = rot @ tcp_rot.T @ (tcp - self._plug_origin(i))
+        rot = rot if cfg.lay_turn else None
         _, arc = self._path(i)
         lay_start = arc[-1] - cfg.lay_from
         if name == "carry":
             point = self._path_point(i, lay_start, cfg.lay_height)
-            return point + offset, None, cfg.carry_speed, 1.0, None
+            return point + offset, rot, cfg.carry_speed, 1.0, None
         seated = self._seated_height(i)
         if name == "lay":
             self.lay_arc[i] = min(self.lay_arc[i] + self.lay_speed[i], cfg.lay_from)
             frac = self.lay_arc[i] / cfg.lay_from
             height = cfg.lay_height + frac * (seated - cfg.lay_height)
             point = self._path_point(i, lay_start + self.lay_arc[i], height)
-            return point + offset, None, 2 * cfg.lay_speed, 1.0, bool(frac >= 1.0)
+            return point + offset, rot, 2 * cfg.lay_speed, 1.0, bool(frac >= 1.0)
         if name == "place":
             point = self._path_point(i, arc[-1], seated)
-            return point + offset, None, cfg.place_speed, 1.0, None
+            return point + offset, rot, cfg.place_speed, 1.0, None
         hold = fsm.get("hold_pos")[i]
+        released = self._open_command(i, cfg.release_open)
         if name == "release":
             gap = env.robot.gripper_opening(env.model, env.data)
-            return hold, None, cfg.place_speed, opened, bool(gap > 0.9 * cfg.pre_open)
+            wide = min(cfg.release_open, env.robot.max_opening)
+            return hold, None, cfg.place_speed, released, bool(gap > 0.9 * wide)
         if name == "retreat":
-            return hold + cfg.retreat * up, None, cfg.descend_speed, opened, None
+            return hold + cfg.retreat * up, None, cfg.descend_speed, released, None
         if name in ("press_approach", "press_descend", "press"):
             start, stop = self._press_span(i)
+            opened = self._open_command(i, cfg.press_open)
             if name == "press_approach":
-                target = self._press_target(i, start) + cfg.press_hover * up
-                return self._pad_to_tcp(i, target), None, cfg.approach_speed, opened, None
+                target = self._press_target(i, start) + cfg.press_hover * UP
+                # Travel with the pads above the walls (and the released plug beside them);
+                # come down only over the pass's start.
+                tcp_world = env.data.site_xpos[env.task.tcp_site]
+                if np.linalg.norm((target - tcp_world)[:2]) > cfg.press_travel_reach:
+                    wall_top = env.task.placed.pos[2] + env.task.placed.config.floor
+                    wall_top += env.task.placed.config.wall_height
+                    target[2] = max(target[2], wall_top + cfg.press_travel)
+                tcp, rot = self._pad_to_tcp(i, target, self._press_yaw(i, start))
+                return tcp, rot, cfg.approach_speed, opened, None
             if name == "press_descend":
                 target = self._press_target(i, start)
-                return self._pad_to_tcp(i, target), None, cfg.descend_speed, opened, None
-            ahead = np.sign(stop - start)
-            self.press_arc[i] += ahead * cfg.press_speed
-            done = bool(ahead * (self.press_arc[i] - stop) >= 0)
-            if done:
-                self.press_arc[i] = stop
+                tcp, rot = self._pad_to_tcp(i, target, self._press_yaw(i, start))
+                return tcp, rot, cfg.descend_speed, opened, None
+            # The pad's goal slows down while the pad lags behind it: a lagging pad that
+            # chased a goal further ahead would cut the bends into the walls.
+            lag = self._pad_target_world(i) - self._press_target(i, self.press_arc[i])
+            slow = np.linalg.norm(lag[:2]) > cfg.press_lag
+            done = self._advance_press(i, start, stop, cfg.press_lag_slowdown if slow else 1.0)
             target = self._press_target(i, self.press_arc[i])
-            return self._pad_to_tcp(i, target), None, 3 * cfg.press_speed, opened, done
-        return hold + (cfg.retreat + cfg.final_retreat) * up, None, cfg.descend_speed, opened, None
+            tcp, rot = self._pad_to_tcp(i, target, self._press_yaw(i, self.press_arc[i]))
+            return tcp, rot, 3 * cfg.press_speed, opened, done
+        # press_retreat / done: the pads keep their gap (a pressing pad opening beside the
+        # wall would push into it).
+        gap = cfg.press_open if self.press_count[i] or name == "press_retreat" else None
+        gap = cfg.release_open if gap is None else gap
+        goal = hold + (cfg.retreat + cfg.final_retreat) * up
+        return goal, None, cfg.descend_speed, self._open_command(i, gap), None
 
     # -- the pressing pass ---------------------------------------------------------------------
     def _press_span(self, i) -> tuple[float, float]:
@@ -304,23 +370,51 @@ class SeatingExpert(ScriptedExpert):
         direction = cfg.press_directions[min(self.press_count[i], len(cfg.press_directions) - 1)]
         return (entry_side, end_side) if direction > 0 else (end_side, entry_side)
 
-    def _pad_bottom(self, i):
-        """World centre of the pressing pad's bottom face and the pad's (2,) half extents
-        along its own x and y axes (world xy) with those axes (2, 2)."""
+    def _start_rot(self, i) -> np.ndarray:
+        """Base-frame TCP orientation of the episode's start (pointing down, pads closing along
+        the base y axis): every phase but the pressing pass holds it, and the pad's yaw turns
+        from it.  Captured at the expert's first step of the episode."""
+        rot = self.fsm.snapshots["start_rot"][i]
+        if np.isnan(rot).any():
+            rot[:] = self._ctl_target(i)[1]
+        return rot
+
+    def _yawed(self, i, yaw: float) -> np.ndarray:
+        """Base-frame TCP orientation: the start one turned by ``yaw`` (rad, counter-clockwise
+        seen from above) about the vertical."""
+        up = self._base(i)[1].T @ UP
+        return axis_angle_to_mats((yaw * up)[None])[0] @ self._start_rot(i)
+
+    def _pad_frame(self, i):
+        """The pressing pad (the first of ``robot.pad_geom_names``) in the TCP frame: its
+        bottom centre's offset from the TCP (3,) (it changes with the pad gap), the half
+        extents (long, short) of its bottom face and the direction of its long side (3,)."""
         env = self.envs[i]
         model, data = env.model, env.data
         gid = model.geom(env.robot.pad_geom_names[0]).id
-        rot = data.geom_xmat[gid].reshape(3, 3)
+        pad_rot = data.geom_xmat[gid].reshape(3, 3)
         size = model.geom_size[gid]
+        tcp_world = data.site_xpos[env.task.tcp_site]
+        tcp_rot = data.site_xmat[env.task.tcp_site].reshape(3, 3)
         bottom = data.geom_xpos[gid] - size[2] * UP
-        return bottom, size[:2], rot[:2, :2].T
+        long = int(np.argmax(size[:2]))
+        halves = (float(size[long]), float(size[1 - long]))
+        return tcp_rot.T @ (bottom - tcp_world), halves, tcp_rot.T @ pad_rot[:, long]
 
-    def _pad_to_tcp(self, i, pad_target_world):
-        """Base-frame TCP goal that brings the pressing pad's bottom centre to a world point."""
+    def _pad_target_world(self, i) -> np.ndarray:
+        """World centre of the pressing pad's bottom face now."""
         env = self.envs[i]
-        tcp_world = env.data.site_xpos[env.task.tcp_site]
-        bottom, _, _ = self._pad_bottom(i)
-        return self._to_base(i, pad_target_world + (tcp_world - bottom))
+        offset, _, _ = self._pad_frame(i)
+        tcp_rot = env.data.site_xmat[env.task.tcp_site].reshape(3, 3)
+        return env.data.site_xpos[env.task.tcp_site] + tcp_rot @ offset
+
+    def _pad_to_tcp(self, i, pad_target_world, yaw: float):
+        """Base-frame TCP goal position and orientation (turned by ``yaw``) that bring the
+        pressing pad's bottom centre to a world point."""
+        rot = self._yawed(i, yaw)
+        offset, _, _ = self._pad_frame(i)
+        tcp_world = pad_target_world - self._base(i)[1] @ rot @ offset
+        return self._to_base(i, tcp_world), rot
 
     def _press_target(self, i, s: float):
         """World point for the pad's bottom centre at arc ``s``: on the path, at the seated
@@ -331,19 +425,94 @@ class SeatingExpert(ScriptedExpert):
         point = np.array([np.interp(s, arc, world[:, k]) for k in range(3)])
         return point + np.interp(s, arc, heights) * UP
 
-    def _press_heights(self, i):
-        """(M,) pad-bottom heights above the floor along the path (cached per episode)."""
-        if self._press_profile[i] is not None:
-            return self._press_profile[i]
+    def _press_yaw(self, i, s: float) -> float:
+        """The pad's yaw (rad, from the start orientation) at arc ``s`` of the path."""
+        _, arc = self._path(i)
+        return float(np.interp(s, arc, self._press_profile(i)[1]))
+
+    def _advance_press(self, i, start: float, stop: float, factor: float = 1.0) -> bool:
+        """Move the pad one step along the path towards ``stop``: ``press_speed``, slower where
+        its yaw profile turns by more than ``press_turn_rate`` in that step (the turn keeps up
+        with the slide).  Returns whether the pass has arrived."""
+        cfg = self.config
+        _, arc = self._path(i)
+        yaws = self._press_profile(i)[1]
+        ahead = np.sign(stop - start)
+        here = self.press_arc[i]
+        middle = (arc[1:] + arc[:-1]) / 2
+        lo, hi = sorted((here, here + ahead * cfg.press_speed))
+        near = (middle >= lo - 0.002) & (middle <= hi + 0.002)
+        slope = np.abs(np.diff(yaws)) / np.maximum(np.diff(arc), 1e-9)
+        steepest = float(slope[near].max()) if near.any() else 0.0
+        step = cfg.press_speed * factor
+        if steepest * step > cfg.press_turn_rate:
+            step = cfg.press_turn_rate / steepest
+        self.press_arc[i] = here + ahead * step
+        if ahead * (self.press_arc[i] - stop) >= 0:
+            self.press_arc[i] = stop
+            return True
+        return False
+
+    def _pad_turns(self, i, headings: np.ndarray) -> np.ndarray:
+        """Yaws (rad, from the start orientation) that turn the pads' long side onto world xy
+        ``headings`` (K,): the side has no front, so at most 90 deg either way, continuous
+        along the sequence."""
+        _, _, long_tcp = self._pad_frame(i)
+        start_long = self._base(i)[1] @ self._start_rot(i) @ long_tcp
+        start_heading = math.atan2(start_long[1], start_long[0])
+        return np.unwrap((headings - start_heading + np.pi / 2) % np.pi - np.pi / 2, period=np.pi)
+
+    def _lay_yaw(self, i) -> float:
+        """Yaw (rad, from the start orientation) that lines the pads' long side up with the
+        channel's last segment."""
+        world, _ = self._path(i)
+        end = world[-1] - world[-2]
+        return float(self._pad_turns(i, np.array([math.atan2(end[1], end[0])]))[0])
+
+    def _press_heights(self, i) -> np.ndarray:
+        """(M,) pad-bottom heights above the floor along the path (``_press_profile``)."""
+        return self._press_profile(i)[0]
+
+    def _press_profile(self, i):
+        """Pad-bottom heights above the floor (M,) and pad yaws (M,) along the path, computed
+        once per episode from the channel's geometry and the pad's box in the model.
+
+        The yaw turns the pad's long side from its start heading onto the channel's heading
+        averaged over ``press_turn_window`` of arc either side (the pad is symmetric end to
+        end: at most 90 deg either way); the pad goes down to a seated wire's top wherever its
+        whole footprint, so turned, lies between the walls (``press_margin`` inside) within
+        ``press_window`` of arc, and passes above the wall tops elsewhere."""
+        if self._profiles[i] is not None:
+            return self._profiles[i]
         cfg, task = self.config, self.envs[i].task
         channel = task.placed.config
         world, arc = self._path(i)
-        _, half, axes = self._pad_bottom(i)
-        corners = np.array([[sx * half[0], sy * half[1]] for sx in (-1, 1) for sy in (-1, 1)])
-        offsets = corners @ axes  # rows: corner offsets in world xy
-        fits = np.array(
-            [self._between_walls(i, point[:2] + offsets, cfg.press_margin).all() for point in world]
+        step = np.diff(world[:, :2], axis=0)
+        heading = np.arctan2(step[:, 1], step[:, 0])
+        heading = np.append(heading, heading[-1])
+        _, (half_long, half_short), long_tcp = self._pad_frame(i)
+        start_long = self._base(i)[1] @ self._start_rot(i) @ long_tcp
+        start_heading = math.atan2(start_long[1], start_long[0])
+        turn = self._pad_turns(i, heading)
+        # Dead band along the pass's first direction (entry to end): the yaw only follows
+        # the heading once that is more than press_yaw_slack away.
+        lazy = np.empty_like(turn)
+        yaw = 0.0
+        for k, h in enumerate(turn):
+            yaw = lazy[k] = float(np.clip(yaw, h - cfg.press_yaw_slack, h + cfg.press_yaw_slack))
+        yaws = np.array([lazy[np.abs(arc - a) <= cfg.press_turn_window].mean() for a in arc])
+        along = np.column_stack([np.cos(start_heading + yaws), np.sin(start_heading + yaws)])
+        across = np.column_stack([-along[:, 1], along[:, 0]])
+        # (M, 4, 2) footprint corners: each path point +/- the half extents along both sides.
+        corners = np.stack(
+            [
+                world[:, :2] + sa * half_long * along + sc * half_short * across
+                for sa in (-1, 1)
+                for sc in (-1, 1)
+            ],
+            axis=1,
         )
+        fits = np.array([self._between_walls(i, c, cfg.press_margin).all() for c in corners])
         # Stay high wherever the pad would not fit within press_window of arc.
         blocked = ~fits
         near = np.zeros_like(blocked)
@@ -352,8 +521,8 @@ class SeatingExpert(ScriptedExpert):
         radius = task.assembly.wire.config.radius
         deep = 2 * radius - cfg.press_squeeze
         high = channel.wall_height + cfg.press_clearance
-        self._press_profile[i] = np.where(near, high, deep)
-        return self._press_profile[i]
+        self._profiles[i] = (np.where(near, high, deep), yaws)
+        return self._profiles[i]
 
     def _between_walls(self, i, xy, margin: float) -> np.ndarray:
         """(K,) whether world xy points lie over the channel floor, ``margin`` inside the
@@ -374,13 +543,18 @@ class SeatingExpert(ScriptedExpert):
         return inside
 
     def _needs_pressing(self, i) -> bool:
-        """Whether any inner point of the wire rides higher than ``press_needed`` above a wire
-        resting on the channel floor (the expert's own check; the success flag is not read)."""
+        """Whether any inner point of the wire short of the channel's end rides higher than
+        ``press_needed`` above a wire resting on the channel floor (the expert's own check;
+        the success flag is not read).  Past the end the wire rises to the plug's exit
+        anyway: no pass can lower it there."""
         env = self.envs[i]
         placed = env.task.placed
         points = placed.to_local(env.wire_points())[1:-1]
+        start, heading = placed.config.segment_frames()[-1]
+        along = (points[:, :2] - start) @ np.array([math.cos(heading), math.sin(heading)])
+        short = along < placed.config.segment_length
         rest = placed.config.floor + env.task.assembly.wire.config.radius
-        return bool(np.any(points[:, 2] > rest + self.config.press_needed))
+        return bool(np.any(short & (points[:, 2] > rest + self.config.press_needed)))
 
     def _take_grasp_goal(self, i) -> None:
         """Grasp at the middle of the plug's tail (its ``grasp_site``), TCP ``grasp_height``
