@@ -1,12 +1,13 @@
 """Success of the routing expert over seeds:
 
     python benchmarks/eval_routing_expert.py --num-clips 3 --episodes 100 [--wire rod]
-        [--first-seed 0] [--episode-seconds 8] [--verbose]
+        [--first-seed 0] [--episode-seconds S] [--verbose]
 
-Each episode is reset with its seed (first-seed, first-seed + 1, ...) and run to the end (480
-control steps at the default 8 s); "success at the end" is the task's ``success`` on the last
-step, "at some step" whether it was ever true.  Failures list the seed, the clips routed at
-the end, and the expert's phase and clip.
+Each episode is reset with its seed (first-seed, first-seed + 1, ...) and run to the end (the
+task's length by default: 8 s = 480 control steps per clip); "success at the end" is the
+task's ``success`` on the last step, "at some step" whether it was ever true.  Failures list
+the seed, the clips routed at the end, the expert's phase and clip, and how often it routed
+each clip.
 """
 
 from __future__ import annotations
@@ -66,7 +67,8 @@ def main() -> None:
         if not info["success"]:
             failures.append(
                 f"seed {seed}: routed {info['clips_routed']}/{args.num_clips}, "
-                f"phase {expert.phase_names[0]}, clip {expert.clip[0]}"
+                f"phase {expert.phase_names[0]}, clip {expert.clip[0]}, "
+                f"routings per clip {expert.tries[0, : args.num_clips].tolist()}"
             )
         if args.verbose:
             print(

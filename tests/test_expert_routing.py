@@ -56,11 +56,23 @@ def test_routes_three_clips_with_steep_hops():
     env.close()
 
 
-# Measured with benchmarks/eval_routing_expert.py (seeds 0-49): 3 clips 34 % at the end; seed 1
-# still fails (clip 2 is not seated before time runs out: the first clip alone takes ~190 of the
-# 480 steps), so this stays a non-strict xfail until the expert reaches the >= 98 % target.
+# Seed 35 (3 clips) failed with the 20 s episode: the retry of clip 2 grasped where the wire had
+# been while it still settled (the pads closed 2 cm above it), and the swing to clip 2 ran into
+# clip 3's uprights until its 150-step timeout.  It passes with the grasp that follows the wire,
+# the swing over a clip in the way and the re-routing of clips left empty.
 @pytest.mark.slow
-@pytest.mark.xfail(reason="routing expert: 3 clips 34 % (17/50 seeds), target 98 %")
+def test_routes_three_clips_after_a_retry():
+    env, info, expert = run_episode(3, 35)
+    assert info["success"], (expert.phase_names, info["clips_routed"])
+    assert expert.tries[0, :3].sum() > 3  # a clip was routed again
+    env.close()
+
+
+# Measured with benchmarks/eval_routing_expert.py (tuning seeds 0-49, 1440-step episodes): 3 clips
+# 72 % at the end; seed 1 still fails (clip 3's slot link lies aslant, 28 deg hop), so this stays
+# a non-strict xfail until the expert reaches the >= 98 % target.
+@pytest.mark.slow
+@pytest.mark.xfail(reason="routing expert: 3 clips 72 % (36/50 tuning seeds), target 98 %")
 def test_routes_three_clips_seed_that_still_fails():
     env, info, expert = run_episode(3, 1)
     assert info["success"], (expert.phase_names, info["clips_routed"])
@@ -222,3 +234,84 @@ def test_an_episode_depends_on_its_seed_not_on_the_episodes_before_it():
     fresh_env = wirecraft.make("routing", num_clips=2)
     fresh = actions(fresh_env, RoutingExpert(fresh_env, seed=0), 5, 480)
     np.testing.assert_array_equal(after, fresh)
+
+
+def test_next_clip_is_the_first_empty_one_with_routings_left():
+    """Clips are routed again in route order (a clip's routing anchors the wire at the one
+    before it), each at most ``max_clip_tries`` times; ``None`` ends the route."""
+    env = wirecraft.make("routing", num_clips=3)
+    env.reset(seed=0)
+    expert = RoutingExpert(env)
+    limit = expert.config.max_clip_tries
+    for seated, tries, expected in (
+        ([True, False, False], [1, 1, 0], 1),
+        ([False, True, False], [1, 1, 1], 0),
+        ([False, True, False], [limit, 1, 1], 2),
+        ([False, True, True], [limit, 1, 1], None),
+        ([True, True, True], [1, 1, 1], None),
+    ):
+        expert.seated = lambda i, margin=None, s=seated: np.array(s)
+        expert.tries[0] = tries
+        assert expert._next_clip(0) == expected, (seated, tries)
+    env.close()
+
+
+def test_done_goes_back_to_a_clip_the_wire_left():
+    """In ``done``, a clip that reads empty for ``recheck_steps`` steps in a row is routed
+    again (a shorter gap is not: the reading flickers while the wire settles)."""
+    env = wirecraft.make("routing", num_clips=2)
+    env.reset(seed=0)
+    expert = RoutingExpert(env)
+    fsm = expert.fsm
+    fsm.goto("done", [0])
+    expert.tries[0, :2] = [1, 1]
+    expert.seated = lambda i, margin=None: np.array([True, False])
+    for _ in range(expert.config.recheck_steps - 1):
+        assert not expert._recheck(0)
+    assert expert.phase_names == ["done"]
+    assert expert._recheck(0)
+    assert expert.phase_names == ["approach"] and expert.clip[0] == 1 and expert.tries[0, 1] == 2
+    env.close()
+
+
+def test_grasp_point_follows_the_wire_where_it_lies_now():
+    """The grasp point is the point ``arc`` m along the current centre line (linear between
+    nodes), at the grasp height above the table, or just above a wire lying raised."""
+    env = wirecraft.make("routing")
+    env.reset(seed=0)
+    expert = RoutingExpert(env)
+    u = env.unwrapped
+    cfg = expert.config
+    start = np.array([0.0, -0.1, 0.004])
+    nodes = start + np.outer(np.arange(5) * 0.03, [0.0, 1.0, 0.0])
+    u.wire_points = lambda: nodes
+    world = expert._base(0)[0] + expert._base(0)[1] @ expert._grasp_point(0, 0.045)
+    assert world == pytest.approx([0.0, -0.1 + 0.045, cfg.grasp_height], abs=1e-9)
+    raised = nodes + [0.0, 0.0, 0.03]  # the same wire 3 cm higher (e.g. still settling)
+    u.wire_points = lambda: raised
+    world = expert._base(0)[0] + expert._base(0)[1] @ expert._grasp_point(0, 0.045)
+    assert world[2] == pytest.approx(0.034 + cfg.wire_below_tcp, abs=1e-9)
+    env.close()
+
+
+def test_swing_goes_over_a_clip_in_its_way():
+    env = wirecraft.make("routing", num_clips=3)
+    env.reset(seed=0)
+    expert = RoutingExpert(env)
+    u = env.unwrapped
+    cfg = expert.config
+    clips = u.task.placed_clips(u.data)
+    expert.clip[0] = 1
+    beside = expert._to_base(0, np.array(clips[1].pos) + [0.05, 0.0, 0.0])
+    expert._beside_goal = lambda i: beside
+    # from beyond clip 2, straight across it: over it
+    expert.fsm.snapshots["lift_from"][0] = expert._to_base(
+        0, np.array(clips[2].pos) + [0.0, 0.05, 0.0]
+    )
+    assert expert._swing_height(0) == cfg.carry_height
+    # from well beside the lane, clear of clips 0 and 2: low
+    expert.fsm.snapshots["lift_from"][0] = expert._to_base(
+        0, np.array(clips[1].pos) + [0.12, 0.0, 0.0]
+    )
+    assert expert._swing_height(0) == cfg.sweep_height
+    env.close()

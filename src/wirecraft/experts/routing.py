@@ -17,8 +17,12 @@ success flags or ``task.routed``):
 
 Phases (``PHASES``), once per clip: approach -> descend -> close -> lift -> rotate -> raise
 -> stretch -> pull_back -> push -> release -> retreat [-> press_over -> press -> press_up],
-then back to ``approach`` for the next clip (re-grasp; the first clip the expert's own slot
-check finds empty, while retries last) or ``done``.  Every goal is a TCP pose in the robot
+then back to ``approach`` for the next clip (re-grasp; the first clip, in route order, the
+expert's own slot check finds empty, each clip routed at most ``max_clip_tries`` times) or
+``done``.  ``done`` keeps checking the slots: a clip that reads empty for ``recheck_steps``
+steps (the wire sprang out, or the work on a later clip pulled it out) is routed again.  A
+wire that is not between the pads when lift, rotate, raise, stretch or pull_back ends is
+grasped again (``max_grasp_retries`` per routing).  Every goal is a TCP pose in the robot
 base frame.
 
 - Grasp: the first wire point (every 5 mm along the centre line, clear of the clips and the
@@ -26,16 +30,21 @@ base frame.
   clip afterwards) to be just taut at the clip front; TCP pointing down, pads closing across
   the local wire tangent (of the two equivalent yaws, the one that makes the whole turn, to
   the grasp and on to the slot axis, shortest); the TCP descends to a fixed height above the
-  table, or to the wire's own height where it lies raised.  How deep the wire then sits
+  table, or to the wire's own height where it lies raised, following the grasp point (the
+  same length along the wire) while the wire settles.  How deep the wire then sits
   between the pads is measured and used for the carry and the push.
 - At grasp time the anchor and the anchor-to-clip direction (horizontal) are frozen.
 - Lift a little and swing the wire low to beside the clip while turning the pads across the
-  slot axis (a stiff wire lifted and swung near a seated clip pries it out), raise to the carry
-  height, over-stretch along the frozen direction until the free wire is straight, pull back
+  slot axis (a stiff wire lifted and swung near a seated clip pries it out; over another clip
+  that lies in the swing's path at the carry height), raise to the carry height,
+  over-stretch along the frozen direction until the free wire is straight, pull back
   to the clip front on the slot axis, far side, correcting sideways until the wire crosses
   the clip's mid-plane over the slot centre, with the pads where they hold the link of the
   wire that spans the slot (``_link_front``); push down until the wire is seated, the pose
-  is reached or the wrist feels ``push_force``; release, retreat.
+  is reached or the wrist feels ``push_force`` (seated: ``push_seated_margin`` below the
+  lips; a wire released just past them sprang back out); release, retreat.  Swing, raise and
+  stretch end early once the TCP stalls with the pads turned (the held wire is taut from the
+  anchor: pulling on drags it through the previous clip).
 - Press: when the wire lies over the slot's mouth but not in it (on the lips), one open pad is
   brought over the slot and lowered onto the wire, slowly near it, down to just above the
   clip's top or until the wrist feels ``press_force``.
@@ -107,8 +116,12 @@ class RoutingExpertConfig:
     max_yaw: float = 0.4  # rad: largest turn of the pads off the slot axis
     aslant_hop: float = 0.26  # rad: hops steeper than this get the retry changes at once
     seated_margin: float = 0.001  # m below the lips a wire must lie to count as seated
-    max_grasp_retries: int = 2  # per clip: re-grasps after a grasp that did not hold
-    max_seat_retries: int = 2  # per episode: clips routed again after a failed push
+    push_seated_margin: float = 0.003  # m below the lips the push takes the wire
+    max_grasp_retries: int = 3  # per routing of a clip: re-grasps after the wire left the pads
+    stall_distance: float = 0.0015  # m: a TCP that moves less than this ...
+    stall_steps: int = 10  # ... for this many steps has stalled (rotate, raise, stretch)
+    max_clip_tries: int = 6  # routings of one clip per episode (the first included)
+    recheck_steps: int = 10  # steps in a row a clip must read empty before ``done`` goes back
 
 
 PHASES = (
@@ -159,7 +172,7 @@ class RoutingExpert(ScriptedExpert):
     def _init_state(self) -> None:
         self.clip = np.zeros(self.num_envs, int)  # the clip being routed
         self.grasp_retries = np.zeros(self.num_envs, int)
-        self.seat_retries = np.zeros(self.num_envs, int)
+        self.unseated_steps = np.zeros(self.num_envs, int)  # steps in a row done saw a gap
         self.grasp_arc = np.zeros(self.num_envs)  # m along the wire of the current grasp
         self.free_wire = np.zeros(self.num_envs)  # m of wire between anchor and grasp
         self.held_below = np.full(self.num_envs, self.config.wire_below_tcp)  # m: held wire's
@@ -171,11 +184,13 @@ class RoutingExpert(ScriptedExpert):
         self.wrench_before = np.zeros((self.num_envs, 3))  # N: wrist force as a push began
         self.force_steps = np.zeros(self.num_envs, int)  # steps in a row over the force limit
         self.force_stopped = np.zeros(self.num_envs, bool)
+        self.still_from = np.zeros((self.num_envs, 3))  # TCP where it last moved (base frame)
+        self.still_steps = np.zeros(self.num_envs, int)  # steps since it moved from there
 
     def _reset_state(self, mask) -> None:
         self.clip[mask] = 0
         self.grasp_retries[mask] = 0
-        self.seat_retries[mask] = 0
+        self.unseated_steps[mask] = 0
         self.tries[mask] = 0
         self.tries[mask, 0] = 1
         self.yaw[mask] = 0.0
@@ -189,6 +204,7 @@ class RoutingExpert(ScriptedExpert):
         self.wrench_before[mask] = 0.0
         self.force_steps[mask] = 0
         self.force_stopped[mask] = False
+        self.still_steps[mask] = 0
 
     # -- frames ------------------------------------------------------------------------------
     def _up(self, i):
@@ -261,11 +277,12 @@ class RoutingExpert(ScriptedExpert):
         arc = self._arc(points)
         return slot, float(arc[np.argmin(np.linalg.norm(points - slot, axis=1))])
 
-    def seated(self, i) -> np.ndarray:
+    def seated(self, i, margin: float | None = None) -> np.ndarray:
         """(clips,) bool: the expert's own reading of which slots hold the wire: some point of
-        the centre line (every 2 mm) between the uprights and ``seated_margin`` below the
-        lips."""
+        the centre line (every 2 mm) between the uprights and ``margin`` (default
+        ``seated_margin``) below the lips."""
         env, cfg = self.envs[i], self.config
+        margin = cfg.seated_margin if margin is None else margin
         line = resample(env.wire_points(), 0.002)
         result = []
         for clip in env.task.placed_clips(env.data):
@@ -277,10 +294,7 @@ class RoutingExpert(ScriptedExpert):
                         (np.abs(local[:, 0]) <= c.length / 2)
                         & (np.abs(local[:, 1]) <= c.slot_width / 2)
                         & (local[:, 2] >= c.base_height)
-                        & (
-                            local[:, 2]
-                            <= c.base_height + c.slot_depth - c.lip_thickness - cfg.seated_margin
-                        )
+                        & (local[:, 2] <= c.base_height + c.slot_depth - c.lip_thickness - margin)
                     )
                 )
             )
@@ -326,15 +340,25 @@ class RoutingExpert(ScriptedExpert):
         tangent = points[min(k + 1, len(points) - 1)] - points[max(k - 1, 0)]
         # A wire lying raised (over a clip, or arched) is grasped at its own height, so that it
         # sits low between the pads: the push can then take it down to the slot.
-        lying = float(np.dot(points[k] - self._table_height(i, 0.0), up))
-        grasp = self._at_height(i, points[k], max(cfg.grasp_height, lying + cfg.wire_below_tcp))
-        self.fsm.snapshots["grasp_pos"][i] = grasp
+        self.fsm.snapshots["grasp_pos"][i] = self._grasp_point(i, arc[k])
         _, slot_axis, _ = self._clip_geometry(i)
         self.fsm.snapshots["grasp_rot"][i] = self._grasp_rot(i, tangent, slot_axis)
         self.fsm.snapshots["anchor"][i] = anchor
         self.fsm.snapshots["direction"][i] = _horizontal(slot - anchor, up)
         self.grasp_arc[i] = arc[k]
         self.free_wire[i] = arc[k] - anchor_arc
+
+    def _grasp_point(self, i, arc_length):
+        """TCP position (base frame) that grasps the wire ``arc_length`` m along it, as it lies
+        now: a fixed height above the table, or, where the wire lies raised (over a clip, or
+        arched), its own height, so that it sits low between the pads and the push can take it
+        down to the slot."""
+        cfg = self.config
+        points = self._to_base(i, self.envs[i].wire_points())
+        arc = self._arc(points)
+        point = np.array([np.interp(arc_length, arc, points[:, d]) for d in range(3)])
+        lying = float(np.dot(point - self._table_height(i, 0.0), self._up(i)))
+        return self._at_height(i, point, max(cfg.grasp_height, lying + cfg.wire_below_tcp))
 
     def _held_depth(self, i, tcp_pos):
         """m the wire's centre line lies below the TCP where it passes between the pads
@@ -386,6 +410,25 @@ class RoutingExpert(ScriptedExpert):
         if size < 1e-6:
             return stretch
         return stretch + offset * min(1.0, cfg.side_gap / size)
+
+    def _swing_height(self, i) -> float:
+        """TCP height of the swing from the grasp to beside the clip: low (``sweep_height``),
+        unless the swing's straight path passes within ``clip_clearance`` of another clip,
+        whose uprights would stop the pads: then the carry height, over it."""
+        cfg, env = self.config, self.envs[i]
+        up = self._up(i)
+        start = _flat(self.fsm.get("lift_from")[i], up)
+        end = _flat(self._beside_goal(i), up)
+        span = end - start
+        t_max = max(float(span @ span), 1e-12)
+        for k, clip in enumerate(env.task.placed_clips(env.data)):
+            if k == self.clip[i]:
+                continue
+            centre = _flat(self._to_base(i, np.array(clip.pos)), up)
+            t = np.clip((centre - start) @ span / t_max, 0.0, 1.0)
+            if np.linalg.norm(start + t * span - centre) < cfg.clip_clearance:
+                return cfg.carry_height
+        return cfg.sweep_height
 
     # -- the press ---------------------------------------------------------------------------
     def _pad_tip_offsets(self, i):
@@ -559,6 +602,22 @@ class RoutingExpert(ScriptedExpert):
         return clip.base_height + clip.slot_depth + 2 * radius + cfg.press_clearance + pad_end
 
     # -- control -------------------------------------------------------------------------------
+    def _stalled(self, i, goal_rot) -> bool | None:
+        """True once the TCP has stayed within ``stall_distance`` for ``stall_steps`` steps
+        (in this phase) with the pads within the phase's turn tolerance; None otherwise (the
+        pose and dwell decide)."""
+        cfg, fsm, view = self.config, self.fsm, self.views[i]
+        if (
+            fsm.steps[i] == 0
+            or np.linalg.norm(view.tcp_pos - self.still_from[i]) > cfg.stall_distance
+        ):
+            self.still_from[i] = view.tcp_pos
+            self.still_steps[i] = 0
+            return None
+        self.still_steps[i] += 1
+        turned = rotation_angle(goal_rot, view.tcp_rot) <= fsm.rot_tol[fsm.phase[i]]
+        return True if turned and self.still_steps[i] >= cfg.stall_steps else None
+
     def _held(self, i) -> bool:
         env = self.envs[i]
         return all(env.task.pad_contacts(env.model, env.data, env.task.assembly.wire_contacts))
@@ -573,19 +632,23 @@ class RoutingExpert(ScriptedExpert):
         open_cmd = 1.0 - 2.0 * min(cfg.pre_open, env.robot.max_opening) / env.robot.max_opening
 
         if name == "done":
+            if self._recheck(i):
+                return self._goals(i)
             hold = fsm.get("hold_pos")[i]
             _, rot = self._ctl_target(i)
             return hold + cfg.retreat * up, rot, cfg.descend_speed, open_cmd, None
 
         grasp_pos, grasp_rot = fsm.get("grasp_pos")[i], fsm.get("grasp_rot")[i]
         # ---- Approach: above the grasp node, pads across the wire, open ----------------------
-        if name == "approach":
+        # ---- Descend: straight down to the grasp height (the yaw finishes on the way) --------
+        if name in ("approach", "descend"):
             if np.isnan(grasp_pos).any():
                 self._plan_grasp(i)
-                grasp_pos, grasp_rot = fsm.get("grasp_pos")[i], fsm.get("grasp_rot")[i]
+                grasp_rot = fsm.get("grasp_rot")[i]
+            # the wire may still be settling after the last release: follow its grasp point
+            grasp_pos = fsm.snapshots["grasp_pos"][i] = self._grasp_point(i, self.grasp_arc[i])
+        if name == "approach":
             return grasp_pos + cfg.hover * up, grasp_rot, fast, open_cmd, None
-
-        # ---- Descend: straight down to the fixed grasp height (the yaw finishes on the way) --
         if name == "descend":
             return grasp_pos, grasp_rot, cfg.descend_speed, open_cmd, None
 
@@ -598,21 +661,24 @@ class RoutingExpert(ScriptedExpert):
         slot_rot = fsm.get("slot_rot")[i]
         # ---- Lift: straight up to the carry height, starting to turn to the slot axis ---------
         if name == "lift":
-            return self._at_height(i, lift_from, cfg.sweep_height), slot_rot, fast, 1.0, None
+            goal = self._at_height(i, lift_from, self._swing_height(i))
+            return goal, slot_rot, fast, 1.0, None
 
         # ---- Rotate: pads across the slot axis, swinging the wire low to beside the clip ------
+        # (these three end early once the TCP stalls with the pads turned: the held wire is
+        # taut from the anchor, and pulling on would drag it through the previous clip)
         if name == "rotate":
-            goal = self._at_height(i, self._beside_goal(i), cfg.sweep_height)
-            return goal, slot_rot, cfg.carry_speed, 1.0, None
+            goal = self._at_height(i, self._beside_goal(i), self._swing_height(i))
+            return goal, slot_rot, cfg.carry_speed, 1.0, self._stalled(i, slot_rot)
 
         # ---- Raise: up to the carry height, still beside the clip ----------------------------
         if name == "raise":
             goal = self._at_height(i, self._beside_goal(i), cfg.carry_height)
-            return goal, slot_rot, fast, 1.0, None
+            return goal, slot_rot, fast, 1.0, self._stalled(i, slot_rot)
 
         # ---- Stretch: over the clip, past the slot along the frozen direction -----------------
         if name == "stretch":
-            return self._stretch_goal(i), slot_rot, cfg.carry_speed, 1.0, None
+            return self._stretch_goal(i), slot_rot, cfg.carry_speed, 1.0, self._stalled(i, slot_rot)
 
         slot, axis, _ = self._clip_geometry(i)
         direction = fsm.get("direction")[i]
@@ -645,7 +711,8 @@ class RoutingExpert(ScriptedExpert):
         if name == "push":
             if self._force_stop(i, cfg.push_force):
                 return self.views[i].tcp_pos, slot_rot, fast, 1.0, True
-            seated = bool(self.seated(i)[self.clip[i]])
+            # a wire just past the lips springs back out on release: push it well down
+            seated = bool(self.seated(i, margin=cfg.push_seated_margin)[self.clip[i]])
             # the held wire's centre to push_height - wire_below_tcp (however deep it sits in
             # the pads), the pads' ends no lower than at push_height
             low = cfg.push_height - cfg.wire_below_tcp + self.held_below[i]
@@ -680,20 +747,33 @@ class RoutingExpert(ScriptedExpert):
         return self._at_height(i, press, clear), slot_rot, fast, open_cmd, None
 
     def _next_clip(self, i) -> int | None:
-        """After a clip's retreat: the first clip the wire is not seated in, while retries
-        last; else the next clip in order; None when the route is finished."""
+        """The first clip (in route order) the wire is not seated in that has routings left
+        (``max_clip_tries``); None when every clip holds the wire or none has tries left.  In
+        route order because a clip's routing anchors the wire at the clip before it."""
         seated = self.seated(i)
-        pending = np.flatnonzero(~seated)
-        if len(pending) == 0:
-            return None
-        first = int(pending[0])
-        if first <= self.clip[i]:
-            if self.seat_retries[i] < self.config.max_seat_retries:
-                self.seat_retries[i] += 1
-                return first
-            later = pending[pending > self.clip[i]]
-            return int(later[0]) if len(later) else None
-        return first
+        left = self.tries[i, : len(seated)] < self.config.max_clip_tries
+        pending = np.flatnonzero(~seated & left)
+        return int(pending[0]) if len(pending) else None
+
+    def _recheck(self, i) -> bool:
+        """In ``done``: whether a clip has read empty for ``recheck_steps`` steps in a row (the
+        wire sprang out after the release, or the work on a later clip pulled it out) and has
+        routings left; if so, environment ``i`` goes back to route it."""
+        # a wire resting just below the lips is left alone: only one clearly out goes back
+        if self.seated(i, margin=0.0).all():
+            self.unseated_steps[i] = 0
+            return False
+        self.unseated_steps[i] += 1
+        if self.unseated_steps[i] < self.config.recheck_steps or self._next_clip(i) is None:
+            return False
+        self.unseated_steps[i] = 0
+        self._finish_clip(i)
+        return True
+
+    @property
+    def _carrying(self) -> tuple[int, ...]:
+        """Phases after which the wire must be between the pads."""
+        return tuple(self.fsm.index(n) for n in ("lift", "rotate", "raise", "stretch", "pull_back"))
 
     def _on_advance(self, advanced: np.ndarray, before: np.ndarray) -> None:
         """Snapshots and branches when environments leave a phase."""
@@ -704,20 +784,26 @@ class RoutingExpert(ScriptedExpert):
             left = before[i]
             one = np.zeros(self.num_envs, bool)
             one[i] = True
+            if left == idx("stretch"):
+                self.lateral[i] = 0.0
+                self.yaw[i] = 0.0
+            if (
+                left in self._carrying
+                and not self._held(i)
+                and self.grasp_retries[i] < cfg.max_grasp_retries
+            ):
+                # the wire slipped out of the pads (or was never caught): a push now would
+                # press on nothing, so grasp it again
+                self.grasp_retries[i] += 1
+                fsm.snapshots["grasp_pos"][i] = np.nan
+                fsm.goto("approach", one)
+                continue
             if left == idx("close"):
                 tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
                 self.held_below[i] = self._held_depth(i, tcp_pos)
                 fsm.snapshots["lift_from"][i] = tcp_pos
                 _, axis, _ = self._clip_geometry(i)
                 fsm.snapshots["slot_rot"][i] = self._down_rot(i, axis, near=fsm.get("grasp_rot")[i])
-            elif left == idx("lift"):
-                if not self._held(i) and self.grasp_retries[i] < cfg.max_grasp_retries:
-                    self.grasp_retries[i] += 1
-                    fsm.snapshots["grasp_pos"][i] = np.nan
-                    fsm.goto("approach", one)
-            elif left == idx("stretch"):
-                self.lateral[i] = 0.0
-                self.yaw[i] = 0.0
             elif left in (idx("press_over"), idx("pull_back")):
                 self.wrench_before[i] = env.wrist_wrench()[:3]
                 self.force_steps[i] = 0
