@@ -19,7 +19,6 @@ largest insertion force (``info["insertion_force"]``, N) of each episode, over a
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 
@@ -30,27 +29,13 @@ import wirecraft
 from wirecraft.assets.connectors import CONNECTORS
 from wirecraft.experts import InsertionExpert
 from wirecraft.experts.insertion import InsertionExpertConfig
-
-
-def _parse_value(text: str):
-    if text.lower() in ("true", "false"):
-        return text.lower() == "true"
-    if "," in text:
-        return tuple(_parse_value(t) for t in text.split(","))
-    try:
-        return int(text)
-    except ValueError:
-        return float(text)
+from wirecraft.rl.config import parse_override
 
 
 def config_from(args) -> InsertionExpertConfig:
-    fields = {f.name for f in dataclasses.fields(InsertionExpertConfig)}
+    defaults = InsertionExpertConfig()
     overrides = {"diversity": args.diversity, "release": not args.hold}
-    for item in args.set:
-        name, _, value = item.partition("=")
-        if name not in fields:
-            raise SystemExit(f"--set: unknown InsertionExpertConfig field {name!r}")
-        overrides[name] = _parse_value(value)
+    overrides.update(parse_override(item, defaults) for item in args.set)
     return InsertionExpertConfig(**overrides)
 
 

@@ -1,13 +1,11 @@
 """Success of the seating expert over seeds, per channel shape:
 python benchmarks/eval_seating_expert.py --channels straight,curved --seeds 100
-[--wire articulated] [--robot ur5] [--first-seed 0] [--verbose] [--set lay_turn=False ...]
+[--wire articulated] [--robot ur5] [--first-seed 0] [--verbose] [--set lay_turn=false ...]
 (``--set`` overrides ``SeatingExpertConfig`` fields, for comparing variants)."""
 
 from __future__ import annotations
 
 import argparse
-import ast
-import dataclasses
 import time
 
 import numpy as np
@@ -15,6 +13,7 @@ from tqdm import tqdm
 
 import wirecraft
 from wirecraft.experts.seating import SeatingExpert, SeatingExpertConfig
+from wirecraft.rl.config import parse_override
 
 
 def run_episode(env, expert, seed: int, verbose: bool) -> dict:
@@ -44,19 +43,6 @@ def run_episode(env, expert, seed: int, verbose: bool) -> dict:
     }
 
 
-def parse_overrides(items: list[str]) -> dict:
-    fields = {f.name for f in dataclasses.fields(SeatingExpertConfig)}
-    overrides = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep or name not in fields:
-            raise ValueError(
-                f"--set expects FIELD=VALUE with FIELD one of {sorted(fields)}, got {item!r}"
-            )
-        overrides[name] = ast.literal_eval(value)
-    return overrides
-
-
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--channels", default="straight,curved")
@@ -71,10 +57,11 @@ def main() -> None:
         nargs="*",
         default=[],
         metavar="FIELD=VALUE",
-        help="override SeatingExpertConfig fields (Python literals)",
+        help="override SeatingExpertConfig fields (lists comma-separated, true/false)",
     )
     args = parser.parse_args()
-    overrides = parse_overrides(args.set)
+    defaults = SeatingExpertConfig()
+    overrides = dict(parse_override(item, defaults) for item in args.set)
     summary = []
     for channel in args.channels.split(","):
         env = wirecraft.make(

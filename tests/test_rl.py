@@ -89,6 +89,15 @@ def test_overrides_parse_to_the_field_types():
         parse_override("lr=1", cfg)
     with pytest.raises(ValueError, match="cannot read"):
         parse_override("num_envs=many", cfg)
+    # Any config dataclass, e.g. an expert's (the eval_*_expert benchmarks' --set): a tuple
+    # of floats reads as floats, one of ints as ints.
+    from wirecraft.experts import InsertionExpertConfig
+
+    expert = InsertionExpertConfig()
+    assert parse_override("drop_height=0.03,0.05", expert) == ("drop_height", (0.03, 0.05))
+    assert parse_override("close_pause=0,5", expert) == ("close_pause", (0, 5))
+    with pytest.raises(ValueError, match="cannot read"):
+        parse_override("close_pause=0.5,1", expert)
 
 
 # -- the rsl-rl adapter -------------------------------------------------------------------------

@@ -289,8 +289,9 @@ def config_from_dict(algorithm: str, values: dict[str, Any]):
 
 
 def parse_override(text: str, cfg) -> tuple[str, Any]:
-    """``NAME=VALUE`` to a typed (name, value) for ``cfg``'s field ``NAME`` (lists: comma-
-    separated; booleans: true/false; none: None)."""
+    """``NAME=VALUE`` to a typed (name, value) for ``cfg``'s field ``NAME`` (any config
+    dataclass; lists: comma-separated, of the current tuple's element type; booleans:
+    true/false; none: None)."""
     if "=" not in text:
         raise ValueError(f"--set expects NAME=VALUE, got {text!r}")
     name, raw = (s.strip() for s in text.split("=", 1))
@@ -309,7 +310,8 @@ def parse_override(text: str, cfg) -> tuple[str, Any]:
                 raise ValueError
             return name, raw.lower() in ("true", "1")
         if isinstance(current, tuple):
-            return name, tuple(int(v) for v in raw.split(",") if v.strip())
+            element = float if any(isinstance(v, float) for v in current) else int
+            return name, tuple(element(v) for v in raw.split(",") if v.strip())
         if isinstance(current, int):
             return name, int(float(raw)) if "e" in raw.lower() else int(raw)
         if isinstance(current, float):
