@@ -22,6 +22,8 @@ import os
 import time
 from pathlib import Path
 
+from wirecraft.assets.robots import ROBOTS
+from wirecraft.assets.wires import WIRE_MODELS
 from wirecraft.evaluation.protocol import run_evaluation
 
 VARIANTS = {
@@ -103,9 +105,21 @@ def main() -> None:
     unknown = [t for t in tasks if t not in VARIANTS]
     if unknown:
         raise SystemExit(f"unknown task(s) {unknown}; valid: {', '.join(VARIANTS)}")
+    robots, wires = args.robots.split(","), args.wires.split(",")
+    for name in robots:
+        ROBOTS.get(name)  # ValueError listing the valid names
+    for name in wires:
+        WIRE_MODELS.get(name)
+    for name in ("seeds", "episodes", "workers"):
+        if getattr(args, name) < 1:
+            raise SystemExit(f"--{name} must be >= 1, got {getattr(args, name)}")
     only = {p for p in args.only.split(",") if p}
+    todo = list(cells(tasks, robots, wires, only))
+    if not todo:
+        raise SystemExit(
+            f"--only {args.only!r} matches no cell (ROBOT/WIRE, e.g. panda/articulated)"
+        )
     args.out.mkdir(parents=True, exist_ok=True)
-    todo = list(cells(tasks, args.robots.split(","), args.wires.split(","), only))
     rows = []
     for i, (task, variant, robot, wire) in enumerate(todo, 1):
         path = cell_path(args.out, task, variant, robot, wire)
