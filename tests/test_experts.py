@@ -197,6 +197,8 @@ def test_config_validation():
         InsertionExpertConfig(sag_gain=-0.1)
     with pytest.raises(ValueError, match="sag_limit"):
         InsertionExpertConfig(sag_limit=-0.001)
+    with pytest.raises(ValueError, match="sag_window"):
+        InsertionExpertConfig(sag_window=float("nan"))
 
 
 # -- other robots ------------------------------------------------------------------------------

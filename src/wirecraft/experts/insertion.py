@@ -227,8 +227,10 @@ class InsertionExpertConfig:
                 f"InsertionExpertConfig.sag_gain must be in [0, 1], got {self.sag_gain}"
             )
         for name in ("sag_window", "sag_limit"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"InsertionExpertConfig.{name} must be >= 0")
+            if not getattr(self, name) >= 0:  # NaN fails too
+                raise ValueError(
+                    f"InsertionExpertConfig.{name} must be >= 0, got {getattr(self, name)}"
+                )
         for name in ("force_hold", "force_backoff"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(
