@@ -13,7 +13,7 @@ import pytest
 
 import wirecraft
 from wirecraft.rl import RUN_FILE, load_policy, train
-from wirecraft.rl.common import ProgressTable, final_observations
+from wirecraft.rl.common import EpisodeTracker, ProgressTable, final_observations
 from wirecraft.rl.config import PPOConfig, SACfDConfig, VisionPPOConfig, parse_override
 
 SHORT = {"episode_seconds": 0.1}  # 6 control steps per episode
@@ -158,6 +158,21 @@ def test_final_observations_replace_rows_of_finished_envs():
     out = final_observations(obs, {"final_obs": final}, np.array([False, True, False]))
     np.testing.assert_array_equal(out, [[0, 0], [7, 8], [0, 0]])
     assert obs[1, 0] == 0  # not modified in place
+
+
+def test_episode_tracker_sums_each_reward_term_per_episode():
+    tracker = EpisodeTracker(2)
+    no = np.zeros(2, bool)
+    step = {"reward/bring": np.array([1.0, 2.0]), "reward/grasp": np.array([0.5, 0.0])}
+    assert tracker.step(np.array([1.5, 2.0]), no, no, step) == []
+    records = tracker.step(np.array([1.5, 2.0]), no, np.array([False, True]), step)
+    assert len(records) == 1  # only the second environment's episode ended
+    assert records[0]["reward/bring"] == 4.0 and records[0]["reward/grasp"] == 0.0
+    assert records[0]["return"] == 4.0 and records[0]["length"] == 2
+    # The finished environment starts its next episode from zero; the other one carries on.
+    records = tracker.step(np.array([1.5, 2.0]), no, np.array([True, True]), step)
+    assert [r["reward/bring"] for r in records] == [3.0, 2.0]
+    assert [r["reward/grasp"] for r in records] == [1.5, 0.0]
 
 
 def test_demo_mixing_memory_draws_the_demo_ratio():

@@ -123,11 +123,18 @@ class EpisodeTracker:
         self.returns = np.zeros(num_envs)
         self.lengths = np.zeros(num_envs, int)
         self.ever = {k: np.zeros(num_envs, bool) for k in EPISODE_FLAGS}
+        # Per-term returns ("reward/bring", ...): which terms a policy collects shows what it
+        # has learned long before any success flag moves.
+        self.term_returns: dict[str, np.ndarray] = {}
 
     def step(self, rewards, terminated, truncated, infos) -> list[dict[str, float]]:
         """Account for one step; returns one record per episode that ended in it."""
         self.returns += rewards
         self.lengths += 1
+        for key, value in infos.items():
+            if key.startswith("reward/"):
+                sums = self.term_returns.setdefault(key, np.zeros(self.num_envs))
+                sums += np.asarray(value, float)
         done = np.asarray(terminated) | np.asarray(truncated)
         final = infos.get("final_info", {})
         flags = {}
@@ -145,6 +152,9 @@ class EpisodeTracker:
                 record[key] = float(flags[key][i])
                 record[f"{key}_any"] = float(self.ever[key][i])
             record["diverged"] = float(diverged[i])
+            for key, sums in self.term_returns.items():
+                record[key] = float(sums[i])
+                sums[i] = 0.0
             records.append(record)
             self.returns[i] = 0.0
             self.lengths[i] = 0
