@@ -75,9 +75,9 @@ LATERAL_TOLERANCE = 0.001  # m beyond the clearance
 REACH_DISTANCE = 0.02  # m
 ROLL_GATE = math.radians(10.0)  # insertion depth only counts with the roll this well aligned
 PRE_INSERT = 0.03  # m before the mouth: where "bring" aims
-# The plug starts 15-45 cm from the socket. A 0.1 m tanh scale left "bring" flat there (0.4 of
-# its 40 at 26 cm): a 4.2M-step PPO run learned to grasp and hold but never to carry the plug.
-# 0.3 m keeps a slope over the whole table; "align" (0.02 m) gives the fine one near the mouth.
+# The plug starts 13-33 cm from pre-insert (seeds 0-29). A 0.1 m tanh scale left "bring" flat
+# there (0.4 of its 40 at 26 cm): a 4.2M-step PPO run learned to grasp and hold but never to
+# carry the plug. 0.3 m keeps a slope over the table; "align" (0.02 m) is the fine one.
 BRING_SCALE = 0.3
 # A latch engages only with the plug this close to a seating orientation: about the axis
 # (roll) and of the axis itself (tilt).  The socket's rattle slack allows more (3 mm clearance:
