@@ -84,9 +84,10 @@ def test_a_diverging_environment_leaves_the_others_untouched(batched, sync_envs)
     assert np.all(np.isfinite(hit))
 
 
-def test_same_step_autoreset_reports_final_obs_and_starts_a_new_episode():
-    venv = wirecraft.make_vec("insertion", 2, threads=1, episode_seconds=5 / 60)
-    env = wirecraft.make("insertion", episode_seconds=5 / 60)
+@pytest.mark.parametrize("task", ["insertion", "routing"])  # batched and per-environment steps
+def test_same_step_autoreset_reports_final_obs_and_starts_a_new_episode(task):
+    venv = wirecraft.make_vec(task, 2, threads=1, episode_seconds=5 / 60)
+    env = wirecraft.make(task, episode_seconds=5 / 60)
     actions = actions_for(venv, 5)
     venv.reset(seed=SEED)
     obs, _ = env.reset(seed=env_seed(SEED, 1))
@@ -103,6 +104,37 @@ def test_same_step_autoreset_reports_final_obs_and_starts_a_new_episode():
     # The returned observation is the next episode's first, from the same seeded stream.
     fresh, _ = env.reset()
     np.testing.assert_array_equal(vobs[1], fresh)
+
+
+def test_a_settle_that_diverges_is_retried_as_a_single_environment_retries_it(monkeypatch):
+    # The vector environment settles new episodes together in the batch; one that diverges
+    # while settling starts again from its generator's next draw, as a single one does.
+    from wirecraft.envs.env import WireCraftEnv
+
+    healthy = WireCraftEnv._healthy
+    sick = {"calls": 0}
+
+    def first_settle_of_the_target_fails(self):
+        if getattr(self, "target", False) and sick["calls"] < 1:
+            sick["calls"] += 1
+            return False
+        return healthy(self)
+
+    monkeypatch.setattr(WireCraftEnv, "_healthy", first_settle_of_the_target_fails)
+    venv = wirecraft.make_vec("insertion", 3, threads=2)
+    venv.envs[1].target = True
+    obs, infos = venv.reset(seed=SEED)
+    assert infos["reset_attempts"].tolist() == [1, 2, 1]
+    sick["calls"] = 0
+    env = wirecraft.make("insertion").unwrapped
+    env.target = True
+    single, info = env.reset(seed=env_seed(SEED, 1))
+    assert info["reset_attempts"] == 2
+    np.testing.assert_array_equal(obs[1], single)
+    # Three diverged settles in a row are an error, as for a single environment.
+    sick["calls"] = -10
+    with pytest.raises(RuntimeError, match="diverged while settling"):
+        venv.reset(seed=SEED)
 
 
 def test_partial_reset_touches_only_the_masked_environments():

@@ -174,16 +174,69 @@ class WireCraftEnv(gym.Env):
 
     # -- gymnasium API ----------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        model, data = self.model, self.data
+        self.seed_episode(seed)
         # Later attempts continue the same seeded stream: still deterministic.
         attempt = 1
-        while not self._settle_new_episode():
-            if attempt == RESET_ATTEMPTS:
-                raise RuntimeError(
-                    f"the scene diverged while settling at reset, {attempt} times in a row"
-                )
+        while True:
+            self.start_episode()
+            if self._settle_alone():
+                break
+            self.check_reset_attempt(attempt)
             attempt += 1
+        return self.finish_reset(attempt)
+
+    # A reset in three parts, so that a vector environment can settle many environments'
+    # new episodes in one batch (envs/vector.py): start_episode, the settle steps
+    # (settle_action, settle_steps), finish_reset.
+    def seed_episode(self, seed: int | None) -> None:
+        """gymnasium's reset bookkeeping: reseed the generator where ``seed`` is given."""
+        super().reset(seed=seed)
+
+    def start_episode(self) -> None:
+        """Sample a new episode from this environment's generator: the scene before settling."""
+        model, data = self.model, self.data
+        mujoco.mj_resetData(model, data)
+        self.robot.reset_home(model, data)
+        self.task.initialize_episode(model, data, self.np_random)
+        self.controller.reset(data)
+        mujoco.mj_forward(model, data)
+
+    @property
+    def settle_steps(self) -> int:
+        """Control steps the scene settles for, the robot holding still."""
+        return int(round(self.task.settle_seconds * CONTROL_HZ))
+
+    @property
+    def settle_action(self) -> np.ndarray:
+        hold = np.zeros(self.action_space.shape)
+        hold[-1] = -1.0  # gripper open
+        return hold
+
+    def _settle_alone(self) -> bool:
+        """Let the new episode settle; False if it diverged."""
+        hold = self.settle_action
+        for _ in range(self.settle_steps):
+            self.controller.apply(self.data, hold)
+            mujoco.mj_step(self.model, self.data, nstep=SUBSTEPS)
+            if not self._healthy():
+                return False
+        return True
+
+    @staticmethod
+    def check_reset_attempt(attempt: int) -> None:
+        """Raise once the settle diverged ``RESET_ATTEMPTS`` times in a row."""
+        if attempt >= RESET_ATTEMPTS:
+            raise RuntimeError(
+                f"the scene diverged while settling at reset, {attempt} times in a row"
+            )
+
+    def finish_reset(self, attempt: int):
+        """The settled episode's first observation and info."""
+        model, data = self.model, self.data
+        self.controller.reset(data)
+        self.controller.reset_targets(data)
+        mujoco.mj_forward(model, data)
+        self.task.after_settle(model, data)
         self._steps = 0
         obs = self._observe()
         info = {
@@ -193,27 +246,6 @@ class WireCraftEnv(gym.Env):
             "reset_attempts": attempt,
         }
         return obs, info
-
-    def _settle_new_episode(self) -> bool:
-        """Sample an episode, let it settle with the robot holding still; False if it diverged."""
-        model, data = self.model, self.data
-        mujoco.mj_resetData(model, data)
-        self.robot.reset_home(model, data)
-        self.task.initialize_episode(model, data, self.np_random)
-        self.controller.reset(data)
-        mujoco.mj_forward(model, data)
-        hold = np.zeros(self.action_space.shape)
-        hold[-1] = -1.0  # gripper open
-        for _ in range(int(round(self.task.settle_seconds * CONTROL_HZ))):
-            self.controller.apply(data, hold)
-            mujoco.mj_step(model, data, nstep=SUBSTEPS)
-            if not self._healthy():
-                return False
-        self.controller.reset(data)
-        self.controller.reset_targets(data)
-        mujoco.mj_forward(model, data)
-        self.task.after_settle(model, data)
-        return True
 
     def step(self, action):
         before = self.begin_step(action)

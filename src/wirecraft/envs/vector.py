@@ -124,13 +124,11 @@ class WireCraftVectorEnv(VectorEnv):
             if mask.shape != (self.num_envs,):
                 raise ValueError(f"reset_mask must have shape ({self.num_envs},)")
         seeds = self._seeds(seed)
-        observations, infos = [], {}
-        for i in np.flatnonzero(mask):
-            obs, info = self.envs[i].reset(seed=seeds[i])
-            observations.append((i, obs))
-            infos = self._add_info(infos, info, i)
-        for i, obs in observations:
+        ids = np.flatnonzero(mask)
+        infos = {}
+        for i, (obs, info) in self._reset_envs(ids, [seeds[i] for i in ids]).items():
             self._write_obs(i, obs)
+            infos = self._add_info(infos, info, i)
         if self.batched:
             self._load_rows(np.flatnonzero(mask))
         return self._obs_copy(), infos
@@ -152,15 +150,22 @@ class WireCraftVectorEnv(VectorEnv):
         terminations = np.zeros(self.num_envs, bool)
         truncations = np.zeros(self.num_envs, bool)
         infos: dict = {}
+        results = [
+            env.finish_step(actions[i], befores[i], failed=i in failed, forwarded=True)
+            for i, env in enumerate(self.envs)
+        ]
+        # SAME_STEP autoreset: report the final step, start the next episode now.
+        ended = [
+            i
+            for i, (_, _, terminated, truncated, _) in enumerate(results)
+            if terminated or truncated
+        ]
+        restarted = self._reset_envs(ended)
         step_infos = []
-        for i, env in enumerate(self.envs):
-            obs, reward, terminated, truncated, info = env.finish_step(
-                actions[i], befores[i], failed=i in failed, forwarded=True
-            )
-            if terminated or truncated:
-                # SAME_STEP autoreset: report the final step, start the next episode now.
+        for i, (obs, reward, terminated, truncated, info) in enumerate(results):
+            if i in restarted:
                 infos = self._add_info(infos, {"final_obs": obs, "final_info": info}, i)
-                obs, reset_info = env.reset()
+                obs, reset_info = restarted[i]
                 info = {**info, **{f"reset/{k}": v for k, v in reset_info.items()}}
             self._write_obs(i, obs)
             rewards[i], terminations[i], truncations[i] = reward, terminated, truncated
@@ -295,7 +300,8 @@ class WireCraftVectorEnv(VectorEnv):
         for i in done:  # SAME_STEP autoreset: report the final step, start the next episode
             final_info = {name: infos[name][i].item() for name in step_keys}
             infos = self._add_info(infos, {"final_obs": obs[i].copy(), "final_info": final_info}, i)
-            obs[i], reset_info = self.envs[i].reset()
+        for i, (new_obs, reset_info) in self._reset_envs(done).items():
+            obs[i] = new_obs
             infos = self._add_info(infos, {f"reset/{k}": v for k, v in reset_info.items()}, i)
         self._load_rows(done)
         self._obs[:] = obs
@@ -313,6 +319,56 @@ class WireCraftVectorEnv(VectorEnv):
         env._steps = int(self.steps[i])
 
     # -- internals --------------------------------------------------------------------------
+    def _reset_envs(self, ids, seeds=None) -> dict[int, tuple]:
+        """Reset environments ``ids`` (with ``seeds``, or continuing their generators): bit for
+        bit what each one's own ``reset`` gives, but their settle steps run together in the
+        batch, on its threads.  Returns {id: (obs, info)}."""
+        ids = [int(i) for i in ids]
+        for k, i in enumerate(ids):
+            self.envs[i].seed_episode(None if seeds is None else seeds[k])
+        attempts = dict.fromkeys(ids, 1)
+        pending = ids
+        while pending:
+            for i in pending:
+                self.envs[i].start_episode()
+            pending = self._settle_together(pending)
+            for i in pending:
+                self.envs[i].check_reset_attempt(attempts[i])
+                attempts[i] += 1
+        return {i: self.envs[i].finish_reset(attempts[i]) for i in ids}
+
+    def _settle_together(self, ids: list[int]) -> list[int]:
+        """The settle steps of the new episodes of ``ids``: each environment's controller holds
+        still on its own MjData, the physics steps in the batch.  Returns the ids that
+        diverged."""
+        if not ids:
+            return []
+        model, state = self.model, self.batch.state
+        first = self.envs[ids[0]]
+        hold = first.settle_action
+        active, diverged = list(ids), []
+        for _ in range(first.settle_steps):
+            for i in active:
+                env = self.envs[i]
+                env.controller.apply(env.data, hold)
+                mujoco.mj_getState(model, env.data, state[i], STATE_SPEC)
+            failed: set[int] = set()
+            try:
+                self.batch.step(np.array(active), nstep=SUBSTEPS)
+            except SimulationError as err:
+                failed = {int(i) for i in err.ids}
+            still = []
+            for i in active:
+                env = self.envs[i]
+                # The state alone: the controller reads joint positions, and finish_reset runs
+                # the forward pass for the rest.
+                mujoco.mj_setState(model, env.data, state[i], STATE_SPEC)
+                (diverged if i in failed or not env._healthy() else still).append(i)
+            if not still:
+                break
+            active = still
+        return diverged
+
     def _seeds(self, seed) -> list[int | None]:
         if seed is None:
             return [None] * self.num_envs
