@@ -109,30 +109,35 @@ def test_same_step_autoreset_reports_final_obs_and_starts_a_new_episode(task):
 def test_a_settle_that_diverges_is_retried_as_a_single_environment_retries_it(monkeypatch):
     # The vector environment settles new episodes together in the batch; one that diverges
     # while settling starts again from its generator's next draw, as a single one does.
-    from wirecraft.envs.env import WireCraftEnv
+    import mujoco
 
-    healthy = WireCraftEnv._healthy
-    sick = {"calls": 0}
+    from wirecraft.envs.env import MAX_LINEAR_SPEED, WireCraftEnv
 
-    def first_settle_of_the_target_fails(self):
-        if getattr(self, "target", False) and sick["calls"] < 1:
-            sick["calls"] += 1
-            return False
-        return healthy(self)
+    start = WireCraftEnv.start_episode
+    sick = {"episodes": 0}
 
-    monkeypatch.setattr(WireCraftEnv, "_healthy", first_settle_of_the_target_fails)
+    def target_starts_flying(self):
+        start(self)
+        if getattr(self, "target", False) and sick["episodes"] > 0:
+            sick["episodes"] -= 1
+            free = list(self.model.jnt_type).index(mujoco.mjtJoint.mjJNT_FREE)
+            adr = self.model.jnt_dofadr[free]
+            self.data.qvel[adr : adr + 3] = (0.0, 0.0, 3 * MAX_LINEAR_SPEED)
+
+    monkeypatch.setattr(WireCraftEnv, "start_episode", target_starts_flying)
     venv = wirecraft.make_vec("insertion", 3, threads=2)
     venv.envs[1].target = True
+    sick["episodes"] = 1
     obs, infos = venv.reset(seed=SEED)
     assert infos["reset_attempts"].tolist() == [1, 2, 1]
-    sick["calls"] = 0
     env = wirecraft.make("insertion").unwrapped
     env.target = True
+    sick["episodes"] = 1
     single, info = env.reset(seed=env_seed(SEED, 1))
     assert info["reset_attempts"] == 2
     np.testing.assert_array_equal(obs[1], single)
     # Three diverged settles in a row are an error, as for a single environment.
-    sick["calls"] = -10
+    sick["episodes"] = 10
     with pytest.raises(RuntimeError, match="diverged while settling"):
         venv.reset(seed=SEED)
 

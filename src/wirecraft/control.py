@@ -120,6 +120,15 @@ class ControlState:
             for f in self.FIELDS[2:]:
                 setattr(controller, f, getattr(self, f)[i].copy())
 
+    def rows(self, mask) -> ControlState:
+        """A copy of the rows ``mask`` selects."""
+        return ControlState(**{f: getattr(self, f)[mask].copy() for f in self.FIELDS})
+
+    def set_rows(self, mask, other: ControlState) -> None:
+        """Rows ``mask`` selects := ``other``'s rows, in order."""
+        for f in self.FIELDS:
+            getattr(self, f)[mask] = getattr(other, f)
+
     def copy(self) -> ControlState:
         return ControlState(**{f: getattr(self, f).copy() for f in self.FIELDS})
 

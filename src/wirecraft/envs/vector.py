@@ -80,6 +80,7 @@ class WireCraftVectorEnv(VectorEnv):
         # quantities up to date after a step runs on the batch's threads and get_data hands the
         # whole result back (cheaper than mj_setState + mj_forward per environment in Python).
         self.batch = Batch(self.model, num_envs, nthread=threads, persistent=True)
+        self._ctrl = self.batch.bind("ctrl")
         self.single_observation_space = first.observation_space
         self.single_action_space = first.action_space
         self.observation_space = batch_space(first.observation_space, num_envs)
@@ -100,7 +101,6 @@ class WireCraftVectorEnv(VectorEnv):
         self.sync_envs = bool(sync_envs)
         if self.batched:
             self.frame = Frame.of_batch(self.batch)
-            self._ctrl = self.batch.bind("ctrl")
             self.controls = ControlState.gather([env.controller for env in self.envs])
             self.trackers = {
                 name: np.full(num_envs, value) for name, value in first.task.trackers.items()
@@ -338,36 +338,63 @@ class WireCraftVectorEnv(VectorEnv):
         return {i: self.envs[i].finish_reset(attempts[i]) for i in ids}
 
     def _settle_together(self, ids: list[int]) -> list[int]:
-        """The settle steps of the new episodes of ``ids``: each environment's controller holds
-        still on its own MjData, the physics steps in the batch.  Returns the ids that
-        diverged."""
+        """The settle steps of the new episodes of ``ids``, all in the batch: the controllers
+        hold still through the batched ``compute`` (the batched step's code, bit-identical to
+        each controller's own ``apply``), the physics steps on the batch's threads.  Returns
+        the ids that diverged."""
         if not ids:
             return []
         model, state = self.model, self.batch.state
         first = self.envs[ids[0]]
-        hold = first.settle_action
-        active, diverged = list(ids), []
+        controller, index = first.controller, first.controller.index
+        rows = np.array(ids)
+        for i in ids:
+            mujoco.mj_getState(model, self.envs[i].data, state[i], STATE_SPEC)
+        self.batch.forward(rows, stage=VEL)  # positions for the first step's kinematics
+        frame = self._settle_frame()
+        controls = ControlState.gather([self.envs[i].controller for i in ids])
+        hold = np.tile(first.settle_action, (len(ids), 1))
+        alive = np.ones(len(ids), bool)
         for _ in range(first.settle_steps):
-            for i in active:
-                env = self.envs[i]
-                env.controller.apply(env.data, hold)
-                mujoco.mj_getState(model, env.data, state[i], STATE_SPEC)
-            failed: set[int] = set()
+            live = rows[alive]
+            held = controls if alive.all() else controls.rows(alive)
+            kinematics = None
+            if controller.needs_kinematics:
+                tcp = frame.site_xpos[live, index.tcp_site]
+                jac = controller.tcp_jacobian(frame.cdof[live], frame.subtree_com[live], tcp)
+                kinematics = (tcp, frame.rot("site_xmat", index.tcp_site)[live], jac)
+            q = frame.qpos[live][:, index.arm_qpos]
+            arm = controller.compute(held, q, kinematics, hold[alive])
+            if held is not controls:
+                controls.set_rows(alive, held)
+            self._ctrl[live[:, None], index.arm_act] = arm
+            self._ctrl[live, index.gripper_act] = held.gripper_target
+            failed = np.zeros(len(ids), bool)
             try:
-                self.batch.step(np.array(active), nstep=SUBSTEPS)
+                self.batch.step(live, nstep=SUBSTEPS, stage=VEL)
             except SimulationError as err:
-                failed = {int(i) for i in err.ids}
-            still = []
-            for i in active:
-                env = self.envs[i]
-                # The state alone: the controller reads joint positions, and finish_reset runs
-                # the forward pass for the rest.
-                mujoco.mj_setState(model, env.data, state[i], STATE_SPEC)
-                (diverged if i in failed or not env._healthy() else still).append(i)
-            if not still:
+                failed = np.isin(rows, np.asarray(err.ids, dtype=int))
+            qvel = frame.qvel[rows]
+            healthy = (
+                np.all(np.isfinite(frame.qpos[rows]), axis=1)
+                & np.all(np.isfinite(qvel), axis=1)
+                & np.all(np.abs(qvel) < first._speed_limits, axis=1)
+            )
+            alive &= healthy & ~failed
+            if not alive.any():
                 break
-            active = still
-        return diverged
+        frame.cache.clear()
+        for k, i in enumerate(ids):
+            env = self.envs[i]
+            # The state alone: finish_reset runs the forward pass for the rest.
+            mujoco.mj_setState(model, env.data, state[i], STATE_SPEC)
+            controls.store(k, env.controller)
+        return [i for i, ok in zip(ids, alive, strict=True) if not ok]
+
+    def _settle_frame(self) -> Frame:
+        if not hasattr(self, "frame"):
+            self.frame = Frame.of_batch(self.batch)
+        return self.frame
 
     def _seeds(self, seed) -> list[int | None]:
         if seed is None:
