@@ -66,6 +66,16 @@ def default_episode_seconds(task: str, **env_kwargs: Any) -> float:
         raise ValueError(f"{task}: invalid keyword argument: {err}") from None
 
 
+def within_limits(qpos, qvel, speed_limits) -> np.ndarray:
+    """Whether each state (the last axis of ``qpos`` / ``qvel``; one state or N rows) is finite
+    and below the speed limits: False means diverged."""
+    return (
+        np.all(np.isfinite(qpos), axis=-1)
+        & np.all(np.isfinite(qvel), axis=-1)
+        & np.all(np.abs(qvel) < speed_limits, axis=-1)
+    )
+
+
 def _speed_limits(model: mujoco.MjModel) -> np.ndarray:
     """(nv,) the speed above which each DOF counts as diverged: m/s or rad/s by DOF kind."""
     limits = np.full(model.nv, MAX_ANGULAR_SPEED)
@@ -325,12 +335,7 @@ class WireCraftEnv(gym.Env):
         }
 
     def _healthy(self) -> bool:
-        data = self.data
-        return bool(
-            np.all(np.isfinite(data.qpos))
-            and np.all(np.isfinite(data.qvel))
-            and np.all(np.abs(data.qvel) < self._speed_limits)
-        )
+        return bool(within_limits(self.data.qpos, self.data.qvel, self._speed_limits))
 
     # -- observation ------------------------------------------------------------------------
     def _observe(self):

@@ -39,7 +39,7 @@ from mujoco.batch import Batch, SimulationError
 
 from wirecraft import validation
 from wirecraft.control import ControlState
-from wirecraft.envs.env import STATE_SPEC, SUBSTEPS, WireCraftEnv
+from wirecraft.envs.env import STATE_SPEC, SUBSTEPS, WireCraftEnv, within_limits
 from wirecraft.tasks.base import weighted_reward
 from wirecraft.tasks.frame import Frame
 
@@ -81,6 +81,7 @@ class WireCraftVectorEnv(VectorEnv):
         # whole result back (cheaper than mj_setState + mj_forward per environment in Python).
         self.batch = Batch(self.model, num_envs, nthread=threads, persistent=True)
         self._ctrl = self.batch.bind("ctrl")
+        self.frame = Frame.of_batch(self.batch)  # the batched step's and the settle's view
         self.single_observation_space = first.observation_space
         self.single_action_space = first.action_space
         self.observation_space = batch_space(first.observation_space, num_envs)
@@ -100,7 +101,6 @@ class WireCraftVectorEnv(VectorEnv):
         self.batched = possible if batched is None else bool(batched)
         self.sync_envs = bool(sync_envs)
         if self.batched:
-            self.frame = Frame.of_batch(self.batch)
             self.controls = ControlState.gather([env.controller for env in self.envs])
             self.trackers = {
                 name: np.full(num_envs, value) for name, value in first.task.trackers.items()
@@ -130,7 +130,7 @@ class WireCraftVectorEnv(VectorEnv):
             self._write_obs(i, obs)
             infos = self._add_info(infos, info, i)
         if self.batched:
-            self._load_rows(np.flatnonzero(mask))
+            self._load_rows(ids)
         return self._obs_copy(), infos
 
     def step(self, actions):
@@ -210,7 +210,7 @@ class WireCraftVectorEnv(VectorEnv):
 
     def _step_batched(self, actions):
         first, frame, n = self.envs[0], self.frame, self.num_envs
-        controller, task = first.controller, first.task
+        task = first.task
         clipped = np.clip(actions, -1.0, 1.0)
         if self.sync_envs:  # environments mirror the batch: adopt what was written into them
             self._load_rows(np.arange(n), only_changed=True)
@@ -218,15 +218,7 @@ class WireCraftVectorEnv(VectorEnv):
         controls_before = self.controls.copy()
         trackers_before = {name: values.copy() for name, values in self.trackers.items()}
 
-        index = controller.index
-        kinematics = None
-        if controller.needs_kinematics:
-            tcp = frame.site_xpos[:, index.tcp_site]
-            jac = controller.tcp_jacobian(frame.cdof, frame.subtree_com, tcp)
-            kinematics = (tcp, frame.rot("site_xmat", index.tcp_site), jac)
-        arm = controller.compute(self.controls, frame.qpos[:, index.arm_qpos], kinematics, clipped)
-        self._ctrl[:, index.arm_act] = arm
-        self._ctrl[:, index.gripper_act] = self.controls.gripper_target
+        self._write_controls(slice(None), self.controls, clipped)
 
         bad = np.zeros(n, bool)
         try:
@@ -234,12 +226,7 @@ class WireCraftVectorEnv(VectorEnv):
         except SimulationError as err:
             bad[np.asarray(err.ids, dtype=int)] = True
         self.steps += 1
-        qvel = frame.qvel
-        bad |= ~(
-            np.all(np.isfinite(frame.qpos), axis=1)
-            & np.all(np.isfinite(qvel), axis=1)
-            & np.all(np.abs(qvel) < first._speed_limits, axis=1)
-        )
+        bad |= ~within_limits(frame.qpos, frame.qvel, first._speed_limits)
         diverged = np.flatnonzero(bad)
         if diverged.size:  # roll those back; the others go on untouched
             self.batch.state[diverged] = before[diverged]
@@ -345,41 +332,26 @@ class WireCraftVectorEnv(VectorEnv):
         if not ids:
             return []
         model, state = self.model, self.batch.state
-        first = self.envs[ids[0]]
-        controller, index = first.controller, first.controller.index
+        first, frame = self.envs[ids[0]], self.frame
         rows = np.array(ids)
         for i in ids:
             mujoco.mj_getState(model, self.envs[i].data, state[i], STATE_SPEC)
         self.batch.forward(rows, stage=VEL)  # positions for the first step's kinematics
-        frame = self._settle_frame()
         controls = ControlState.gather([self.envs[i].controller for i in ids])
         hold = np.tile(first.settle_action, (len(ids), 1))
         alive = np.ones(len(ids), bool)
         for _ in range(first.settle_steps):
             live = rows[alive]
             held = controls if alive.all() else controls.rows(alive)
-            kinematics = None
-            if controller.needs_kinematics:
-                tcp = frame.site_xpos[live, index.tcp_site]
-                jac = controller.tcp_jacobian(frame.cdof[live], frame.subtree_com[live], tcp)
-                kinematics = (tcp, frame.rot("site_xmat", index.tcp_site)[live], jac)
-            q = frame.qpos[live][:, index.arm_qpos]
-            arm = controller.compute(held, q, kinematics, hold[alive])
+            self._write_controls(live, held, hold[alive])
             if held is not controls:
                 controls.set_rows(alive, held)
-            self._ctrl[live[:, None], index.arm_act] = arm
-            self._ctrl[live, index.gripper_act] = held.gripper_target
             failed = np.zeros(len(ids), bool)
             try:
                 self.batch.step(live, nstep=SUBSTEPS, stage=VEL)
             except SimulationError as err:
                 failed = np.isin(rows, np.asarray(err.ids, dtype=int))
-            qvel = frame.qvel[rows]
-            healthy = (
-                np.all(np.isfinite(frame.qpos[rows]), axis=1)
-                & np.all(np.isfinite(qvel), axis=1)
-                & np.all(np.abs(qvel) < first._speed_limits, axis=1)
-            )
+            healthy = within_limits(frame.qpos[rows], frame.qvel[rows], first._speed_limits)
             alive &= healthy & ~failed
             if not alive.any():
                 break
@@ -391,10 +363,22 @@ class WireCraftVectorEnv(VectorEnv):
             controls.store(k, env.controller)
         return [i for i, ok in zip(ids, alive, strict=True) if not ok]
 
-    def _settle_frame(self) -> Frame:
-        if not hasattr(self, "frame"):
-            self.frame = Frame.of_batch(self.batch)
-        return self.frame
+    def _write_controls(self, rows, controls: ControlState, actions) -> None:
+        """Servo targets of the environments ``rows`` (an index array, or ``slice(None)`` for
+        all) from their ``controls`` and clipped ``actions``, computed at once from the batch's
+        current positions and written to its ``ctrl`` (bit-identical to each controller's own
+        ``apply``)."""
+        controller = self.envs[0].controller
+        index, frame = controller.index, self.frame
+        kinematics = None
+        if controller.needs_kinematics:
+            tcp = frame.site_xpos[rows, index.tcp_site]
+            jac = controller.tcp_jacobian(frame.cdof[rows], frame.subtree_com[rows], tcp)
+            kinematics = (tcp, frame.rot("site_xmat", index.tcp_site)[rows], jac)
+        q = frame.qpos[rows][:, index.arm_qpos]
+        arm = controller.compute(controls, q, kinematics, actions)
+        self._ctrl[rows if isinstance(rows, slice) else rows[:, None], index.arm_act] = arm
+        self._ctrl[rows, index.gripper_act] = controls.gripper_target
 
     def _seeds(self, seed) -> list[int | None]:
         if seed is None:
