@@ -36,6 +36,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.episodes < 1:
         parser.error("--episodes must be at least 1")
+    if args.first_seed < 0:
+        parser.error("--first-seed must be >= 0 (reset seeds are non-negative)")
     env = wirecraft.make("routing", num_clips=args.num_clips)
     task = env.unwrapped.task
     print("seed  steepest_hop_deg  into_last_deg")
