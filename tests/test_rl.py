@@ -175,6 +175,27 @@ def test_episode_tracker_sums_each_reward_term_per_episode():
     assert [r["reward/grasp"] for r in records] == [1.5, 0.0]
 
 
+def test_rollouts_use_one_torch_thread_and_the_update_keeps_its_threads():
+    import types
+
+    import torch
+
+    from wirecraft.rl import ppo
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        update = lambda: torch.get_num_threads()  # noqa: E731  (reports the threads it ran on)
+        runner = types.SimpleNamespace(alg=types.SimpleNamespace(update=update))
+        with ppo.single_threaded_rollouts(runner):
+            assert torch.get_num_threads() == 1  # rollouts
+            assert runner.alg.update() == 2  # the update
+            assert torch.get_num_threads() == 1  # back to rollouts
+        assert torch.get_num_threads() == 2 and runner.alg.update is update
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_demo_mixing_memory_draws_the_demo_ratio():
     import gymnasium as gym
     import torch

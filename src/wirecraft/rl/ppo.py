@@ -15,6 +15,7 @@ Adapter conventions (what rsl-rl expects):
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from collections.abc import Callable
@@ -232,6 +233,33 @@ def make_runner(env, train_cfg: dict, run_dir: Path, *, on_save: Callable, clock
     # working tree, where the venv lives) and store them in the run: not wanted.
     runner.logger._store_code_state = lambda: []
     return runner
+
+
+@contextlib.contextmanager
+def single_threaded_rollouts(runner):
+    """Within: the rollouts' policy inference runs on one torch thread, the PPO update on as
+    many as torch had.  A state policy's forward pass is tiny, and torch's OpenMP workers,
+    spinning after each one, take cores from MuJoCo's physics threads: on a 16-core machine,
+    one torch thread made rollouts ~40 % faster (docs/performance.md).  The update, a large
+    batch of matrix products, keeps its threads."""
+    torch = _torch()
+    learning_threads = torch.get_num_threads()
+    update = runner.alg.update
+
+    def update_with_threads(*args, **kwargs):
+        torch.set_num_threads(learning_threads)
+        try:
+            return update(*args, **kwargs)
+        finally:
+            torch.set_num_threads(1)
+
+    runner.alg.update = update_with_threads
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        runner.alg.update = update
+        torch.set_num_threads(learning_threads)
 
 
 def learn(runner, total_iterations: int) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime
+import io
 import os
 import time
 from pathlib import Path
@@ -259,12 +260,10 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
         elif bc_actor is not None:
             runner.alg.get_policy().load_state_dict(bc_actor.state_dict())
         total = ppo.iterations_for(cfg, steps)
-        if not progress:
-            import io
-
-            with contextlib.redirect_stdout(io.StringIO()):
-                ppo.learn(runner, total)
-        else:
+        # an image encoder's forward pass does want its threads
+        threads = contextlib.nullcontext() if vision else ppo.single_threaded_rollouts(runner)
+        quiet = contextlib.nullcontext() if progress else contextlib.redirect_stdout(io.StringIO())
+        with threads, quiet:
             ppo.learn(runner, total)
     finally:
         venv.close()
