@@ -353,14 +353,10 @@ def pads_touch_plug(env) -> tuple[bool, bool]:
     return tuple(result)
 
 
-def test_reach_success_needs_the_plug_held_near_the_socket():
-    """Grasp the plug from the table, lift it, then put the port's mouth 1 cm in front of its
-    tip (aligned with it): reached.  Move the port 5 cm further: not reached."""
-    env = make()
-    env.reset(seed=0)
+def grasp_and_lift(env) -> None:
+    """Lay the plug under the open gripper, close on its tail and lift it 8 cm."""
     unwrapped = env.unwrapped
-    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
-    assembly = task.assembly
+    model, data, assembly = unwrapped.model, unwrapped.data, unwrapped.task.assembly
     drive_tcp_height(env, 0.10, -1.0, 30)
     # Lay the plug on the table under the open gripper, its tail centred below the TCP and
     # pointing away from the robot (-x), the cable behind it along +x.
@@ -377,6 +373,15 @@ def test_reach_success_needs_the_plug_held_near_the_socket():
     assert info["grasp_force"] > 0.0
     assert data.xpos[assembly.plug_id][2] > 0.05  # really lifted off the table
 
+
+def test_reach_success_needs_the_plug_held_near_the_socket():
+    """Grasp the plug from the table, lift it, then put the port's mouth 1 cm in front of its
+    tip (aligned with it): reached.  Move the port 5 cm further: not reached."""
+    env = make()
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    model, data, assembly = unwrapped.model, unwrapped.data, unwrapped.task.assembly
+    grasp_and_lift(env)
     mount = model.body("port_mount").mocapid[0]
     mujoco.mj_forward(model, data)  # after mj_step, xpos/xmat lag qpos by one substep
     tip = data.site_xpos[assembly.tip_site].copy()
@@ -392,6 +397,25 @@ def test_reach_success_needs_the_plug_held_near_the_socket():
         result = evaluate(env)
         assert result["reach_success"] is reached, gap
         assert result["insert_success"] is False
+    env.close()
+
+
+def test_grasp_reward_needs_the_pads_commanded_to_squeeze_the_tail():
+    """Pads on the plug earn grasp (and the terms it gates) only while the gripper command asks
+    for a gap 2 mm inside the tail's narrow side: 11 mm for Ethernet, so a gap under 9 mm on
+    the 2F-85's 85 mm stroke, i.e. a command above 1 - 2 * 9 / 85 = 0.788."""
+    env = make()
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    grasp_and_lift(env)
+    assert task.robot.max_opening == pytest.approx(0.085)
+    assert 2 * min(task.connector.tail_half[1:]) == pytest.approx(0.011)
+    for command, held in ((1.0, True), (0.80, True), (0.77, False), (0.5, False), (-1.0, False)):
+        terms = task.reward_terms(model, data, np.array([0, 0, 0, 0, 0, 0, command]))
+        assert pads_touch_plug(env) == (True, True)  # the same state each time
+        assert terms["grasp"] == float(held), command
+        assert (terms["bring"] > 0) is held and (terms["roll"] > 0) is held, command
     env.close()
 
 

@@ -152,6 +152,11 @@ _DEFAULTS = {
 }
 
 
+def commanded_gap(command, max_opening: float):
+    """Pad gap (m) that a gripper command asks for: -1 fully open ... +1 closed."""
+    return 0.5 * (1.0 - command) * max_opening
+
+
 def control_period(model: mujoco.MjModel, config: ControlConfig | None = None) -> float:
     """Seconds per control step."""
     return (config or ControlConfig()).substeps * model.opt.timestep
@@ -232,7 +237,7 @@ class Controller:
         # moving target without the ramp lag kv v / kp (which differs per joint and would bend
         # the tool's path).
         ctrl = state.joint_targets + self.kv_over_kp * velocity
-        state.gripper_target = 0.5 * (1.0 - actions[:, -1]) * self.robot.max_opening
+        state.gripper_target = commanded_gap(actions[:, -1], self.robot.max_opening)
         return np.clip(np.clip(ctrl, q - down, q + up), self.lower, self.upper)
 
     def step(self, data: mujoco.MjData, action) -> None:

@@ -51,6 +51,7 @@ from wirecraft.assets.connectors import CONNECTORS, add_port, add_retention, mak
 from wirecraft.assets.fixtures import PortStandConfig
 from wirecraft.assets.robots.kinematics import cross3, mats_to_quats
 from wirecraft.assets.shapes import add_to_body, quat_about
+from wirecraft.control import commanded_gap
 from wirecraft.sensors import body_geom_ids, contact_normal_force
 from wirecraft.tasks.assembly import WireAssembly
 from wirecraft.tasks.base import TASKS, BatchedTask, shaped
@@ -79,6 +80,11 @@ PRE_INSERT = 0.03  # m before the mouth: where "bring" aims
 # there (0.4 of its 40 at 26 cm): a 4.2M-step PPO run learned to grasp and hold but never to
 # carry the plug. 0.3 m keeps a slope over the table; "align" (0.02 m) is the fine one.
 BRING_SCALE = 0.3
+# "Held", for the reward, is both pads on the plug with the gripper commanded this far inside
+# the tail's narrower side, so that it squeezes.  With contact alone, PPO learned to rest its
+# half-open pads against the plug on the table (command +0.5: a 21 mm gap round a 11 mm tail)
+# and was paid grasp and bring without lifting it (docs/tasks.md).
+SQUEEZE_MARGIN = 0.002  # m
 # A latch engages only with the plug this close to a seating orientation: about the axis
 # (roll) and of the axis itself (tilt).  The socket's rattle slack allows more (3 mm clearance:
 # up to ~20 deg of tilt), so these also bound the snap of the weld when it engages.
@@ -344,7 +350,7 @@ class InsertionTask(BatchedTask):
     def reward_batch(self, frame, trackers, actions) -> dict[str, np.ndarray]:
         tcp = frame.site_xpos[:, self.tcp_site]
         tail = frame.site_xpos[:, self.assembly.grasp_site]
-        held = self.pads_touching(frame).all(axis=1).astype(float)
+        held = (self.pads_touching(frame).all(axis=1) & self.squeezing(actions)).astype(float)
         entry = frame.site_xpos[:, self.entry_site]
         axis = frame.rot("xmat", self.port_id)[:, :, 0]
         tip = frame.site_xpos[:, self.assembly.tip_site]
@@ -374,6 +380,13 @@ class InsertionTask(BatchedTask):
             "action": np.sum(np.square(actions), axis=1),
             "collision": self.table_collision(frame).astype(float),
         }
+
+    def squeezing(self, actions: np.ndarray) -> np.ndarray:
+        """(N,) whether each gripper command closes the pads onto the plug's tail (the last
+        action element: -1 open ... +1 closed, as the controller maps it)."""
+        narrow_side = 2.0 * min(self.connector.tail_half[1:])
+        gap = commanded_gap(actions[:, -1], self.robot.max_opening)
+        return gap < narrow_side - SQUEEZE_MARGIN
 
     def _inserted(self, err) -> np.ndarray:
         return (err["axial"] < AXIAL_TOLERANCE) & (
