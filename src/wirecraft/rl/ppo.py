@@ -240,7 +240,7 @@ def single_threaded_rollouts(runner):
     """Within: the rollouts' policy inference runs on one torch thread, the PPO update on as
     many as torch had.  A state policy's forward pass is tiny, and torch's OpenMP workers,
     spinning after each one, take cores from MuJoCo's physics threads: on a 16-core machine,
-    one torch thread made rollouts ~40 % faster (docs/performance.md).  The update, a large
+    one torch thread made collection 1.8x faster (docs/performance.md).  The update, a large
     batch of matrix products, keeps its threads."""
     torch = _torch()
     learning_threads = torch.get_num_threads()
