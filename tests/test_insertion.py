@@ -353,8 +353,30 @@ def pads_touch_plug(env) -> tuple[bool, bool]:
     return tuple(result)
 
 
+def plug_touches_table(env) -> bool:
+    """From MuJoCo's contact list: any plug geom against the table."""
+    unwrapped = env.unwrapped
+    model, data = unwrapped.model, unwrapped.data
+    plug, table = unwrapped.task.assembly.plug_id, model.geom("table").id
+    return any(
+        table in (int(c.geom[0]), int(c.geom[1]))
+        and plug in (model.geom_bodyid[c.geom[0]], model.geom_bodyid[c.geom[1]])
+        for c in data.contact[: data.ncon]
+    )
+
+
 def grasp_and_lift(env) -> None:
     """Lay the plug under the open gripper, close on its tail and lift it 8 cm."""
+    grasp_on_table(env)
+    info = drive_tcp_height(env, 0.08, 1.0, 30)  # lift
+    data, assembly = env.unwrapped.data, env.unwrapped.task.assembly
+    assert pads_touch_plug(env) == (True, True), "the scripted grasp failed"
+    assert info["grasp_force"] > 0.0
+    assert data.xpos[assembly.plug_id][2] > 0.05  # really lifted off the table
+
+
+def grasp_on_table(env) -> None:
+    """Lay the plug under the open gripper and close on its tail, leaving it on the table."""
     unwrapped = env.unwrapped
     model, data, assembly = unwrapped.model, unwrapped.data, unwrapped.task.assembly
     drive_tcp_height(env, 0.10, -1.0, 30)
@@ -368,10 +390,6 @@ def grasp_and_lift(env) -> None:
     assert pads_touch_plug(env) == (False, False)
     drive_tcp_height(env, 0.012, -1.0, 30)  # down around the tail
     drive_tcp_height(env, 0.012, 1.0, 40)  # close
-    info = drive_tcp_height(env, 0.08, 1.0, 30)  # lift
-    assert pads_touch_plug(env) == (True, True), "the scripted grasp failed"
-    assert info["grasp_force"] > 0.0
-    assert data.xpos[assembly.plug_id][2] > 0.05  # really lifted off the table
 
 
 def test_reach_success_needs_the_plug_held_near_the_socket():
@@ -416,6 +434,29 @@ def test_grasp_reward_needs_the_pads_commanded_to_squeeze_the_tail():
         assert pads_touch_plug(env) == (True, True)  # the same state each time
         assert terms["grasp"] == float(held), command
         assert (terms["bring"] > 0) is held and (terms["roll"] > 0) is held, command
+    env.close()
+
+
+def test_carry_terms_pay_only_with_the_plug_off_the_table():
+    """Squeezed on the table, the plug earns grasp but not bring, align or its orientation
+    terms; lifted in the same grip, it earns them all.  The table contact is checked against
+    MuJoCo's contact list."""
+    env = make()
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    squeeze = np.array([0, 0, 0, 0, 0, 0, 1.0])
+    carry_terms = ("bring", "align", "port_orientation", "roll")
+    grasp_on_table(env)
+    assert pads_touch_plug(env) == (True, True) and plug_touches_table(env)
+    terms = task.reward_terms(model, data, squeeze)
+    assert terms["grasp"] == 1.0
+    assert all(terms[name] == 0.0 for name in carry_terms), terms
+    drive_tcp_height(env, 0.08, 1.0, 30)
+    assert pads_touch_plug(env) == (True, True) and not plug_touches_table(env)
+    terms = task.reward_terms(model, data, squeeze)
+    assert terms["grasp"] == 1.0
+    assert all(terms[name] > 0.0 for name in carry_terms), terms
     env.close()
 
 
