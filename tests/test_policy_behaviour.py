@@ -1,0 +1,42 @@
+"""benchmarks/policy_behaviour.py on the scripted expert, whose grasp is known: it closes
+across the tail, lifts the plug off the table and inserts it."""
+
+import importlib.util
+from argparse import Namespace
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "policy_behaviour.py"
+
+
+def load_script():
+    spec = importlib.util.spec_from_file_location("policy_behaviour", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_expert_grasps_across_the_tail_and_carries_the_plug():
+    script = load_script()
+    args = Namespace(
+        policy="scripted",
+        connector="ethernet",
+        robot="ur5",
+        num_envs=1,
+        seed=0,
+        window=1,  # one row per step
+        threads=1,
+    )
+    windows = script.run(args)
+    assert [w["step"] for w in windows] == list(range(1, 481))
+    # The expert ends its episode once the plug is seated: later windows hold no environment.
+    steps = [w for w in windows if "carried" in w]
+    assert 200 < len(steps) < 480
+    first_touch = next(k for k, w in enumerate(steps) if w["touch"])
+    # Before the grasp: the plug lies on the table (its tip a few mm up), nothing is carried.
+    assert all(w["carried"] == 0.0 and 0.0 < w["tip_mm"] < 15.0 for w in steps[:first_touch])
+    carried = [w for w in steps if w["carried"]]
+    assert len(carried) > 50
+    # While carried: the fingers close across the tail, at its grasp point.
+    assert all(w["cross_deg"] > 80.0 and w["grasp_mm"] < 15.0 for w in carried)
+    assert max(w["tip_mm"] for w in carried) > 50.0  # lifted
+    assert steps[-1]["reach"] == 1.0 and steps[-1]["insert"] == 1.0
