@@ -85,9 +85,6 @@ BRING_SCALE = 0.3
 # half-open pads against the plug on the table (command +0.5: a 21 mm gap round a 11 mm tail)
 # and was paid grasp and bring without lifting it (docs/tasks.md).
 SQUEEZE_MARGIN = 0.002  # m
-# "Carried", which gates bring, align and the plug's orientation terms, is held with the plug
-# off the table.  With the squeeze alone, PPO learned to pinch the plug end to end and press
-# it onto the table, paid for bring without ever lifting it (docs/baselines.md).
 # A latch engages only with the plug this close to a seating orientation: about the axis
 # (roll) and of the axis itself (tilt).  The socket's rattle slack allows more (3 mm clearance:
 # up to ~20 deg of tilt), so these also bound the snap of the weld when it engages.
@@ -371,6 +368,9 @@ class InsertionTask(BatchedTask):
         tcp = frame.site_xpos[:, self.tcp_site]
         tail = frame.site_xpos[:, self.assembly.grasp_site]
         held = self.pads_touching(frame).all(axis=1) & self.squeezing(actions)
+        # Bring, align and the plug's orientation terms pay only while it is carried: held and
+        # off the table.  Paid for held alone, PPO learned to pinch the plug end to end and
+        # press it onto the table (docs/baselines.md).
         carried = (held & ~self.plug_on_table(frame)).astype(float)
         entry = frame.site_xpos[:, self.entry_site]
         axis = frame.rot("xmat", self.port_id)[:, :, 0]
