@@ -1,4 +1,4 @@
-"""What an insertion policy does, step window by step window: the grasp, the carry, the press.
+"""What an insertion policy does, step window by step window: the grasp, the lift, the press.
 
     python benchmarks/policy_behaviour.py --policy RUN_DIR|CHECKPOINT|scripted
         [--connector ethernet] [--robot ur5] [--num-envs 16] [--seed 123] [--window 40]
@@ -9,8 +9,8 @@ every step it reads the simulation and, per window of ``--window`` steps, prints
 environments still in their first episode:
 
 - ``touch``: both pads touch the plug; ``squeeze``: the gripper command also closes them inside
-  the tail (the task's ``squeezing``); ``carried``: squeezed with no plug geom on the table (the
-  reward's gate for bring, align and the orientation terms);
+  the tail (the task's ``squeezing``); ``held``: squeezed with no plug geom on the table (what
+  the reward pays grasp for, and gates bring, align and the orientation terms on);
 - ``tip_mm``: median height of the plug tip above the table; ``tcp_mm``: of the TCP;
 - ``grasp_mm``: median distance from the TCP to the tail's grasp point;
 - ``cross_deg``: median angle between the fingers' closing axis (TCP y) and the plug's long
@@ -39,7 +39,7 @@ from wirecraft.tasks.frame import Frame
 COLUMNS = (
     "touch",
     "squeeze",
-    "carried",
+    "held",
     "tip_mm",
     "tcp_mm",
     "grasp_mm",
@@ -70,7 +70,7 @@ def measure(env, action: np.ndarray) -> dict[str, float]:
     return {
         "touch": float(touch),
         "squeeze": float(squeeze),
-        "carried": float(squeeze and not bool(task.plug_on_table(frame)[0])),
+        "held": float(squeeze and not bool(task.plug_on_table(frame)[0])),
         "tip_mm": 1000 * (float(tip[2]) - table_z),
         "tcp_mm": 1000 * (float(tcp[2]) - table_z),
         "grasp_mm": 1000 * float(np.linalg.norm(tcp - data.site_xpos[task.assembly.grasp_site])),

@@ -29,14 +29,14 @@ def test_the_expert_grasps_across_the_tail_and_carries_the_plug():
     windows = script.run(args)
     assert [w["step"] for w in windows] == list(range(1, 481))
     # The expert ends its episode once the plug is seated: later windows hold no environment.
-    steps = [w for w in windows if "carried" in w]
+    steps = [w for w in windows if "held" in w]
     assert 200 < len(steps) < 480
     first_touch = next(k for k, w in enumerate(steps) if w["touch"])
-    # Before the grasp: the plug lies on the table (its tip a few mm up), nothing is carried.
-    assert all(w["carried"] == 0.0 and 0.0 < w["tip_mm"] < 15.0 for w in steps[:first_touch])
-    carried = [w for w in steps if w["carried"]]
-    assert len(carried) > 50
-    # While carried: the fingers close across the tail, at its grasp point.
-    assert all(w["cross_deg"] > 80.0 and w["grasp_mm"] < 15.0 for w in carried)
-    assert max(w["tip_mm"] for w in carried) > 50.0  # lifted
+    # Before the grasp: the plug lies on the table (its tip a few mm up), nothing is held.
+    assert all(w["held"] == 0.0 and 0.0 < w["tip_mm"] < 15.0 for w in steps[:first_touch])
+    held = [w for w in steps if w["held"]]
+    assert len(held) > 50
+    # While held: the fingers close across the tail, at its grasp point.
+    assert all(w["cross_deg"] > 80.0 and w["grasp_mm"] < 15.0 for w in held)
+    assert max(w["tip_mm"] for w in held) > 50.0  # lifted
     assert steps[-1]["reach"] == 1.0 and steps[-1]["insert"] == 1.0

@@ -367,11 +367,14 @@ class InsertionTask(BatchedTask):
     def reward_batch(self, frame, trackers, actions) -> dict[str, np.ndarray]:
         tcp = frame.site_xpos[:, self.tcp_site]
         tail = frame.site_xpos[:, self.assembly.grasp_site]
-        held = self.pads_touching(frame).all(axis=1) & self.squeezing(actions)
-        # Bring, align and the plug's orientation terms pay only while it is carried: held and
-        # off the table.  Paid for held alone, PPO learned to pinch the plug end to end and
-        # press it onto the table (docs/baselines.md).
-        carried = (held & ~self.plug_on_table(frame)).astype(float)
+        # Held: both pads on the plug, squeezing it, and the plug off the table (a squeezing
+        # grasp lifts it clear as the pads close).  Without the last, PPO learned to pinch the
+        # plug end to end and press it onto the table (docs/baselines.md).
+        held = (
+            self.pads_touching(frame).all(axis=1)
+            & self.squeezing(actions)
+            & ~self.plug_on_table(frame)
+        ).astype(float)
         entry = frame.site_xpos[:, self.entry_site]
         axis = frame.rot("xmat", self.port_id)[:, :, 0]
         tip = frame.site_xpos[:, self.assembly.tip_site]
@@ -390,12 +393,12 @@ class InsertionTask(BatchedTask):
         tcp_z = frame.rot("site_xmat", self.tcp_site)[:, :, 2]
         return {
             "reach": shaped(norms(tcp - tail), 0.1),
-            "grasp": held.astype(float),
-            "bring": carried * shaped(norms(tip - pre_insert), BRING_SCALE),
-            "align": carried * shaped(off_axis(tip) + off_axis(tail), 0.02),
+            "grasp": held,
+            "bring": held * shaped(norms(tip - pre_insert), BRING_SCALE),
+            "align": held * shaped(off_axis(tip) + off_axis(tail), 0.02),
             "insert_depth": ratchet,
-            "port_orientation": carried * shaped(err["axis_error"], 0.2),
-            "roll": carried * shaped(err["roll_error"], 0.2),
+            "port_orientation": held * shaped(err["axis_error"], 0.2),
+            "roll": held * shaped(err["roll_error"], 0.2),
             "ee_orientation": shaped(np.arccos(np.clip(-tcp_z[:, 2], -1, 1)), 0.5),
             "seated": self._inserted(err).astype(float),
             "action": np.sum(np.square(actions), axis=1),
