@@ -458,6 +458,40 @@ def test_grasp_reward_needs_the_plug_off_the_table():
     env.close()
 
 
+def test_ee_orientation_pays_fingers_closing_across_the_plug():
+    """ee_orientation = (1 - tanh(tilt / 0.5)) * (1 - tanh(across / 1.0)): tilt is the TCP z
+    axis from straight down, across the closing axis (TCP y) off square to the plug's long
+    axis.  The plug is laid under the gripper along TCP x (a grasp across the tail), along
+    TCP y (end to end) and at 45 deg between them."""
+    env = make()
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    drive_tcp_height(env, 0.10, -1.0, 30)
+    tcp_rot = data.site_xmat[task.tcp_site].reshape(3, 3).copy()
+    tilt = np.arccos(-tcp_rot[2, 2])
+    flat_x = tcp_rot[:, 0] - tcp_rot[2, 0] * np.array([0, 0, 1.0])
+    flat_y = tcp_rot[:, 1] - tcp_rot[2, 1] * np.array([0, 0, 1.0])
+    flat_x, flat_y = flat_x / np.linalg.norm(flat_x), flat_y / np.linalg.norm(flat_y)
+    rewards = {}
+    for name, axis in (
+        ("across", flat_x),
+        ("diagonal", (flat_x + flat_y) / np.sqrt(2)),
+        ("along", flat_y),
+    ):
+        task.assembly.place(model, data, tcp_pos(env) - [0, 0, 0.08], axis, 0.0)
+        mujoco.mj_forward(model, data)
+        plug_x = data.xmat[task.assembly.plug_id].reshape(3, 3)[:, 0]
+        off_square = np.arcsin(abs(tcp_rot[:, 1] @ plug_x))
+        expected = (1 - np.tanh(tilt / 0.5)) * (1 - np.tanh(off_square / 1.0))
+        terms = task.reward_terms(model, data, np.zeros(7))
+        assert terms["ee_orientation"] == pytest.approx(expected, rel=1e-9), name
+        rewards[name] = terms["ee_orientation"]
+    assert rewards["across"] > 0.9 and rewards["along"] < 0.1
+    assert rewards["across"] > rewards["diagonal"] > rewards["along"]
+    env.close()
+
+
 # -- privileged state -----------------------------------------------------------------------
 
 
