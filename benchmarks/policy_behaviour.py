@@ -19,6 +19,9 @@ environments still in their first episode:
 - ``grip``, ``z``: mean gripper and vertical (base z) action; ``table``: robot-table contact;
 - ``reach``, ``insert``: fraction of environments with that success at some step so far.
 
+The episode's last step is not measured (the vector environment's autoreset has already
+replaced its state), nor is an environment after a divergence ends its episode early.
+
 Made to diagnose PPO runs that learn to touch or squeeze the plug without carrying it
 (docs/baselines.md); ``--policy scripted`` gives the expert's figures to compare against.
 """
@@ -118,7 +121,7 @@ def run(args) -> list[dict[str, float]]:
         inserted |= active & np.asarray(info["insert_success"], bool)
         table = np.asarray(info["reward/collision"]) != 0
         done = np.asarray(terminated) | np.asarray(truncated)
-        for i in np.flatnonzero(active & ~done):  # a done environment already holds a new episode
+        for i in np.flatnonzero(active & ~done):  # a done one already holds its next episode
             row = measure(envs[i], action[i])
             row.update(grip=float(action[i, -1]), z=float(action[i, 2]), table=float(table[i]))
             rows.append(row)
