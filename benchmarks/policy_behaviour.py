@@ -9,8 +9,8 @@ every step it reads the simulation and, per window of ``--window`` steps, prints
 environments still in their first episode:
 
 - ``touch``: both pads touch the plug; ``squeeze``: the gripper command also closes them inside
-  the tail (the task's ``squeezing``); ``held``: squeezed with no plug geom on the table (what
-  the reward pays grasp for, and gates bring, align and the orientation terms on);
+  the tail (the task's ``squeezing``); ``held``: squeezed with no plug geom on the table (the
+  task's ``reward_held``: what grasp pays, and bring, align and the orientation terms need);
 - ``tip_mm``: median height of the plug tip above the table; ``tcp_mm``: of the TCP;
 - ``grasp_mm``: median distance from the TCP to the tail's grasp point;
 - ``cross_deg``: median angle between the fingers' closing axis (TCP y) and the plug's long
@@ -62,9 +62,6 @@ def measure(env, action: np.ndarray) -> dict[str, float]:
     frame = Frame.of_data(data)
     touch = bool(task.pads_touching(frame).all())
     squeeze = touch and bool(task.squeezing(action[None])[0])
-    table_z = float(data.geom_xpos[env.model.geom("table").id][2]) + float(
-        env.model.geom_size[env.model.geom("table").id][2]
-    )
     tip = data.site_xpos[task.assembly.tip_site]
     tcp = data.site_xpos[task.tcp_site]
     closing = data.site_xmat[task.tcp_site].reshape(3, 3)[:, 1]
@@ -73,9 +70,9 @@ def measure(env, action: np.ndarray) -> dict[str, float]:
     return {
         "touch": float(touch),
         "squeeze": float(squeeze),
-        "held": float(squeeze and not bool(task.plug_on_table(frame)[0])),
-        "tip_mm": 1000 * (float(tip[2]) - table_z),
-        "tcp_mm": 1000 * (float(tcp[2]) - table_z),
+        "held": float(task.reward_held(frame, action[None])[0]),
+        "tip_mm": 1000 * float(tip[2]),  # the table's top is z = 0 (scene.add_table)
+        "tcp_mm": 1000 * float(tcp[2]),
         "grasp_mm": 1000 * float(np.linalg.norm(tcp - data.site_xpos[task.assembly.grasp_site])),
         "cross_deg": cross,
         "entry_cm": 100 * float(np.linalg.norm(tip - data.site_xpos[task.entry_site])),
@@ -104,8 +101,6 @@ def run(args) -> list[dict[str, float]]:
         **kwargs,
     )
     envs = venv.envs
-    if envs[0].task.name != "insertion":
-        raise SystemExit("policy_behaviour.py reads the insertion task's geometry")
     policy = load_policy(args.policy, venv)
     obs, _ = venv.reset(seed=args.seed)
     policy.reset(None)

@@ -370,14 +370,7 @@ class InsertionTask(BatchedTask):
     def reward_batch(self, frame, trackers, actions) -> dict[str, np.ndarray]:
         tcp = frame.site_xpos[:, self.tcp_site]
         tail = frame.site_xpos[:, self.assembly.grasp_site]
-        # Held: both pads on the plug, squeezing it, and the plug off the table (a squeezing
-        # grasp lifts it clear as the pads close).  Without the last, PPO learned to pinch the
-        # plug end to end and press it onto the table (docs/baselines.md).
-        held = (
-            self.pads_touching(frame).all(axis=1)
-            & self.squeezing(actions)
-            & ~self.plug_on_table(frame)
-        ).astype(float)
+        held = self.reward_held(frame, actions).astype(float)
         entry = frame.site_xpos[:, self.entry_site]
         axis = frame.rot("xmat", self.port_id)[:, :, 0]
         tip = frame.site_xpos[:, self.assembly.tip_site]
@@ -413,6 +406,18 @@ class InsertionTask(BatchedTask):
             "action": np.sum(np.square(actions), axis=1),
             "collision": self.table_collision(frame).astype(float),
         }
+
+    def reward_held(self, frame: Frame, actions: np.ndarray) -> np.ndarray:
+        """(N,) "held" as the reward pays it (grasp, and the terms grasp gates): both pads on
+        the plug, the gripper commanded to squeeze it, and the plug off the table (a squeezing
+        grasp lifts it clear as the pads close).  Without the last, PPO learned to pinch the
+        plug end to end and press it onto the table (docs/baselines.md).  Success uses the
+        looser ``pads_touching``."""
+        return (
+            self.pads_touching(frame).all(axis=1)
+            & self.squeezing(actions)
+            & ~self.plug_on_table(frame)
+        )
 
     def squeezing(self, actions: np.ndarray) -> np.ndarray:
         """(N,) whether each gripper command closes the pads onto the plug's tail (the last
