@@ -18,6 +18,7 @@ import pytest
 
 import wirecraft
 from wirecraft.assets.connectors import CONNECTORS
+from wirecraft.sensors import touching
 from wirecraft.tasks import insertion as ins
 
 # SPEC section 5, written out here (the module constants are checked against them).
@@ -489,6 +490,31 @@ def test_ee_orientation_pays_fingers_closing_across_the_plug():
         rewards[name] = terms["ee_orientation"]
     assert rewards["across"] > 0.9 and rewards["along"] < 0.1
     assert rewards["across"] > rewards["diagonal"] > rewards["along"]
+    env.close()
+
+
+def test_collision_penalty_covers_the_robot_on_the_port_and_its_stand():
+    """The collision term is 1 while any moving part of the robot touches the table, the port
+    or its stand (the fixture), as a walk over MuJoCo's contact list says.  The port is moved
+    on a grid around the raised gripper, so some poses touch it and some do not."""
+    env = make()
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    drive_tcp_height(env, 0.15, -1.0, 30)
+    mount = model.body("port_mount").mocapid[0]
+    tcp = tcp_pos(env)
+    seen = {True: 0, False: 0}
+    for dx in np.linspace(-0.06, 0.06, 5):
+        for dz in np.linspace(-0.04, 0.12, 5):
+            data.mocap_pos[mount] = tcp + [dx, 0.0, dz]
+            mujoco.mj_forward(model, data)
+            walked = touching(model, data, task.robot_geoms, task.fixture_contacts)
+            assert not touching(model, data, task.robot_geoms, task.table_geom)
+            terms = task.reward_terms(model, data, np.zeros(7))
+            assert terms["collision"] == float(walked), (dx, dz)
+            seen[walked] += 1
+    assert seen[True] > 0 and seen[False] > 0, seen
     env.close()
 
 

@@ -68,6 +68,8 @@ class Task(ABC):
     # environment as attributes and, in a vector environment, as (N,) arrays.
     trackers: ClassVar[dict[str, float | bool]] = {}
     held_body: ClassVar[str | None] = None  # the body the pads hold (its contact sensors)
+    # The body whose subtree is the fixture the robot must not run into (its contact sensors).
+    fixture_body: ClassVar[str | None] = None
 
     def __init__(self, weights: dict[str, float] | None = None) -> None:
         self.weights = dict(self.default_weights)
@@ -96,7 +98,7 @@ class Task(ABC):
     def add_contact_sensors(self, spec: mujoco.MjSpec, robot: RobotHandle) -> None:
         """Contact sensors (``found``: the number of contacts) for the flags batched tasks
         read: each pad against ``held_body``, and each top moving part of the robot (its
-        subtree) against the table."""
+        subtree) against the table and against ``fixture_body``'s subtree."""
         contact = mujoco.mjtSensor.mjSENS_CONTACT
         if self.held_body is not None:
             for k, pad in enumerate(robot.pad_geom_names):
@@ -125,6 +127,16 @@ class Task(ABC):
                 refname="table",
                 intprm=[1, 0, 1],
             )
+            if self.fixture_body is not None:
+                spec.add_sensor(
+                    name=f"touch_fixture{k}",
+                    type=contact,
+                    objtype=mujoco.mjtObj.mjOBJ_XBODY,
+                    objname=name,
+                    reftype=mujoco.mjtObj.mjOBJ_XBODY,
+                    refname=self.fixture_body,
+                    intprm=[1, 0, 1],
+                )
 
     def bind(self, model: mujoco.MjModel, robot: RobotHandle) -> None:
         """Look up, once, what every task reads: the robot's base, TCP and pads, the cable."""
@@ -151,6 +163,9 @@ class Task(ABC):
         )
         self.table_sensors = np.array(
             [adr for name, adr in sensors.items() if name.startswith("touch_table")], dtype=int
+        )
+        self.fixture_sensors = np.array(
+            [adr for name, adr in sensors.items() if name.startswith("touch_fixture")], dtype=int
         )
 
     @abstractmethod
@@ -321,6 +336,11 @@ class BatchedTask(Task):
     def table_collision(self, frame: Frame) -> np.ndarray:
         """(N,) whether any moving part of the robot touches the table."""
         return np.any(frame.sensordata[:, self.table_sensors] > 0, axis=1)
+
+    def fixture_collision(self, frame: Frame) -> np.ndarray:
+        """(N,) whether any moving part of the robot touches ``fixture_body`` (all False for a
+        task without one)."""
+        return np.any(frame.sensordata[:, self.fixture_sensors] > 0, axis=1)
 
     def to_base_batch(self, frame: Frame, points: np.ndarray) -> np.ndarray:
         """World points (N, 3) in the robot base frame."""

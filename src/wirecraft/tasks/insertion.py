@@ -115,6 +115,7 @@ class InsertionTask(BatchedTask):
     }
     trackers = {"depth_high_water": 0.0, "retention_armed": True}
     held_body = "plug"
+    fixture_body = "port_mount"  # the port and its stand
 
     def __init__(self, connector: str = "ethernet", clearance: float = 0.003, weights=None):
         super().__init__(weights)
@@ -404,7 +405,11 @@ class InsertionTask(BatchedTask):
             "ee_orientation": shaped(tilt, 0.5) * shaped(across, ACROSS_SCALE),
             "seated": self._inserted(err).astype(float),
             "action": np.sum(np.square(actions), axis=1),
-            "collision": self.table_collision(frame).astype(float),
+            # The fixture too: PPO carried the plug in under the port and pressed the palm on
+            # its underside (docs/baselines.md).
+            "collision": (self.table_collision(frame) | self.fixture_collision(frame)).astype(
+                float
+            ),
         }
 
     def reward_held(self, frame: Frame, actions: np.ndarray) -> np.ndarray:
