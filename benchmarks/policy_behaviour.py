@@ -16,7 +16,8 @@ environments still in their first episode:
 - ``cross_deg``: median angle between the fingers' closing axis (TCP y) and the plug's long
   axis, folded to 0-90 deg: a grasp across the tail is ~90, a pinch end to end ~0;
 - ``entry_cm``: median distance from the plug tip to the socket entry;
-- ``grip``, ``z``: mean gripper and vertical (base z) action; ``table``: robot-table contact;
+- ``grip``, ``z``: mean gripper and vertical (base z) action; ``table``, ``fixture``: the robot
+  touching the table, the port or its stand (both paid by the ``collision`` term);
 - ``reach``, ``insert``: fraction of environments with that success at some step so far.
 
 The episode's last step is not measured (the vector environment's autoreset has already
@@ -51,6 +52,7 @@ COLUMNS = (
     "grip",
     "z",
     "table",
+    "fixture",
     "reach",
     "insert",
 )
@@ -76,6 +78,10 @@ def measure(env, action: np.ndarray) -> dict[str, float]:
         "grasp_mm": 1000 * float(np.linalg.norm(tcp - data.site_xpos[task.assembly.grasp_site])),
         "cross_deg": cross,
         "entry_cm": 100 * float(np.linalg.norm(tip - data.site_xpos[task.entry_site])),
+        "grip": float(action[-1]),
+        "z": float(action[2]),
+        "table": float(task.table_collision(frame)[0]),
+        "fixture": float(task.fixture_collision(frame)[0]),
     }
 
 
@@ -114,12 +120,9 @@ def run(args) -> list[dict[str, float]]:
         obs, _, terminated, truncated, info = venv.step(action)
         reached |= active & np.asarray(info["reach_success"], bool)
         inserted |= active & np.asarray(info["insert_success"], bool)
-        table = np.asarray(info["reward/collision"]) != 0
         done = np.asarray(terminated) | np.asarray(truncated)
         for i in np.flatnonzero(active & ~done):  # a done one already holds its next episode
-            row = measure(envs[i], action[i])
-            row.update(grip=float(action[i, -1]), z=float(action[i, 2]), table=float(table[i]))
-            rows.append(row)
+            rows.append(measure(envs[i], action[i]))
         active &= ~done
         if (t + 1) % args.window == 0 or t + 1 == steps:
             summary = summarize(rows)

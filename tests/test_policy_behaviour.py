@@ -40,4 +40,5 @@ def test_the_expert_grasps_across_the_tail_and_carries_the_plug():
     # While held: the fingers close across the tail, at its grasp point.
     assert all(w["cross_deg"] > 80.0 and w["grasp_mm"] < 15.0 for w in held)
     assert max(w["tip_mm"] for w in held) > 50.0  # lifted
+    assert all(w["fixture"] == 0.0 for w in steps)  # it never runs into the port or stand
     assert steps[-1]["reach"] == 1.0 and steps[-1]["insert"] == 1.0
