@@ -459,6 +459,31 @@ def test_grasp_reward_needs_the_plug_off_the_table():
     env.close()
 
 
+def test_bring_counts_the_height_error_three_times():
+    """bring = held * (1 - tanh(d / 0.3 m)), d the distance from the plug tip to the point 3 cm
+    before the mouth with the vertical part weighted 3: the port is moved so that the point
+    lies 6 cm beside, behind or above the held tip."""
+    env = make()
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    grasp_and_lift(env)
+    mount = model.body("port_mount").mocapid[0]
+    squeeze = np.array([0, 0, 0, 0, 0, 0, 1.0])
+    mujoco.mj_forward(model, data)
+    tip = data.site_xpos[task.assembly.tip_site].copy()
+    for offset, weighted in (((0.06, 0, 0), 0.06), ((0, 0.06, 0), 0.06), ((0, 0, 0.06), 0.18)):
+        entry, _, rot = port_frame(env)
+        data.mocap_pos[mount] += tip + offset - (entry - ins.PRE_INSERT * rot[:, 0])
+        mujoco.mj_forward(model, data)
+        entry, _, rot = port_frame(env)
+        assert entry - ins.PRE_INSERT * rot[:, 0] == pytest.approx(tip + offset, abs=1e-9)
+        terms = task.reward_terms(model, data, squeeze)
+        assert terms["grasp"] == 1.0
+        assert terms["bring"] == pytest.approx(1 - math.tanh(weighted / 0.3), rel=1e-9), offset
+    env.close()
+
+
 def test_ee_orientation_pays_fingers_closing_across_the_plug():
     """ee_orientation = (1 - tanh(tilt / 0.5)) * (1 - tanh(across / 1.0)): tilt is the TCP z
     axis from straight down, across the closing axis (TCP y) off square to the plug's long

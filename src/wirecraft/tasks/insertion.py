@@ -80,6 +80,11 @@ PRE_INSERT = 0.03  # m before the mouth: where "bring" aims
 # there (0.4 of its 40 at 26 cm): a 4.2M-step PPO run learned to grasp and hold but never to
 # carry the plug. 0.3 m keeps a slope over the table; "align" (0.02 m) is the fine one.
 BRING_SCALE = 0.3
+# "bring" counts the plug's height error this many times over: the port hangs 5-18 cm above
+# the table, and with a plain distance PPO carried the plug in low, under the port, where the
+# port itself blocks the lift (docs/baselines.md).  Weighted, lifting first pays more.
+BRING_HEIGHT_WEIGHT = 3.0
+BRING_WEIGHTS = np.array([1.0, 1.0, BRING_HEIGHT_WEIGHT])  # world x, y, z (z is up)
 # "Held", for the reward, is both pads on the plug with the gripper commanded this far inside
 # the tail's narrower side, so that it squeezes.  With contact alone, PPO learned to rest its
 # half-open pads against the plug on the table (command +0.5: a 21 mm gap round a 11 mm tail)
@@ -397,7 +402,7 @@ class InsertionTask(BatchedTask):
         return {
             "reach": shaped(norms(tcp - tail), 0.1),
             "grasp": held,
-            "bring": held * shaped(norms(tip - pre_insert), BRING_SCALE),
+            "bring": held * shaped(norms((tip - pre_insert) * BRING_WEIGHTS), BRING_SCALE),
             "align": held * shaped(off_axis(tip) + off_axis(tail), 0.02),
             "insert_depth": ratchet,
             "port_orientation": held * shaped(err["axis_error"], 0.2),
