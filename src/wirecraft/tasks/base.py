@@ -57,6 +57,20 @@ EPISODE_SECONDS = 8.0
 TASKS: Registry[type[Task]] = Registry("task")
 
 
+def add_contact_found(spec: mujoco.MjSpec, name: str, obj: tuple, ref: tuple) -> None:
+    """A contact sensor that counts the contacts (``found``) between ``obj`` and ``ref``, each
+    an (mjtObj, name) pair; XBODY means the body's subtree."""
+    spec.add_sensor(
+        name=name,
+        type=mujoco.mjtSensor.mjSENS_CONTACT,
+        objtype=obj[0],
+        objname=obj[1],
+        reftype=ref[0],
+        refname=ref[1],
+        intprm=[1, 0, 1],  # data: found; reduce: none; one slot
+    )
+
+
 class Task(ABC):
     name: ClassVar[str]
     gym_id: ClassVar[str]
@@ -99,17 +113,11 @@ class Task(ABC):
         """Contact sensors (``found``: the number of contacts) for the flags batched tasks
         read: each pad against ``held_body``, and each top moving part of the robot (its
         subtree) against the table and against ``fixture_body``'s subtree."""
-        contact = mujoco.mjtSensor.mjSENS_CONTACT
+        obj = mujoco.mjtObj
         if self.held_body is not None:
             for k, pad in enumerate(robot.pad_geom_names):
-                spec.add_sensor(
-                    name=f"touch_pad{k}",
-                    type=contact,
-                    objtype=mujoco.mjtObj.mjOBJ_GEOM,
-                    objname=pad,
-                    reftype=mujoco.mjtObj.mjOBJ_BODY,
-                    refname=self.held_body,
-                    intprm=[1, 0, 1],  # data: found; reduce: none; one slot
+                add_contact_found(
+                    spec, f"touch_pad{k}", (obj.mjOBJ_GEOM, pad), (obj.mjOBJ_BODY, self.held_body)
                 )
         fixed = {robot.base_site, f"{robot.prefix}chain_base"}
         tops = [
@@ -118,25 +126,11 @@ class Task(ABC):
             if b.parent is not None and b.parent.name in fixed and b.name not in fixed
         ]
         for k, name in enumerate(tops):
-            spec.add_sensor(
-                name=f"touch_table{k}",
-                type=contact,
-                objtype=mujoco.mjtObj.mjOBJ_XBODY,  # the body's subtree
-                objname=name,
-                reftype=mujoco.mjtObj.mjOBJ_GEOM,
-                refname="table",
-                intprm=[1, 0, 1],
-            )
+            subtree = (obj.mjOBJ_XBODY, name)
+            add_contact_found(spec, f"touch_table{k}", subtree, (obj.mjOBJ_GEOM, "table"))
             if self.fixture_body is not None:
-                spec.add_sensor(
-                    name=f"touch_fixture{k}",
-                    type=contact,
-                    objtype=mujoco.mjtObj.mjOBJ_XBODY,
-                    objname=name,
-                    reftype=mujoco.mjtObj.mjOBJ_XBODY,
-                    refname=self.fixture_body,
-                    intprm=[1, 0, 1],
-                )
+                fixture = (obj.mjOBJ_XBODY, self.fixture_body)
+                add_contact_found(spec, f"touch_fixture{k}", subtree, fixture)
 
     def bind(self, model: mujoco.MjModel, robot: RobotHandle) -> None:
         """Look up, once, what every task reads: the robot's base, TCP and pads, the cable."""

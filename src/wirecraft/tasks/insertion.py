@@ -54,7 +54,7 @@ from wirecraft.assets.shapes import add_to_body, quat_about
 from wirecraft.control import commanded_gap
 from wirecraft.sensors import body_geom_ids, contact_normal_force
 from wirecraft.tasks.assembly import WireAssembly
-from wirecraft.tasks.base import TASKS, BatchedTask, shaped
+from wirecraft.tasks.base import TASKS, BatchedTask, add_contact_found, shaped
 from wirecraft.tasks.frame import Frame, dots, norms
 
 INSERTION_AXIS = np.array([0.0, 1.0, 0.0])  # world direction the plug moves to seat
@@ -158,14 +158,11 @@ class InsertionTask(BatchedTask):
 
     def add_contact_sensors(self, spec, robot) -> None:
         super().add_contact_sensors(spec, robot)
-        spec.add_sensor(
-            name="plug_on_table",
-            type=mujoco.mjtSensor.mjSENS_CONTACT,
-            objtype=mujoco.mjtObj.mjOBJ_BODY,  # the plug's own geoms, not the cable's
-            objname=self.assembly.plug,
-            reftype=mujoco.mjtObj.mjOBJ_GEOM,
-            refname="table",
-            intprm=[1, 0, 1],  # data: found; reduce: none; one slot
+        add_contact_found(
+            spec,
+            "plug_on_table",
+            (mujoco.mjtObj.mjOBJ_BODY, self.assembly.plug),  # its own geoms, not the cable's
+            (mujoco.mjtObj.mjOBJ_GEOM, "table"),
         )
 
     def bind(self, model, robot) -> None:
