@@ -438,10 +438,11 @@ def test_grasp_reward_needs_the_pads_commanded_to_squeeze_the_tail():
     env.close()
 
 
-def test_grasp_reward_needs_the_plug_off_the_table():
+def test_grasp_reward_needs_the_plug_lifted_off_the_table():
     """Squeezed but still touching the table, the plug earns neither grasp nor the terms it gates
-    (bring, align, its orientation); lifted in the same grip, it earns them all.  The table
-    contact is checked against MuJoCo's contact list."""
+    (bring, align, its orientation); lifted in the same grip, it earns them all once its tip is
+    2.5 cm above the table, and not below.  The table contact is checked against MuJoCo's
+    contact list."""
     env = make()
     env.reset(seed=0)
     unwrapped = env.unwrapped
@@ -452,10 +453,20 @@ def test_grasp_reward_needs_the_plug_off_the_table():
     assert pads_touch_plug(env) == (True, True) and plug_touches_table(env)
     terms = task.reward_terms(model, data, squeeze)
     assert all(terms[name] == 0.0 for name in held_terms), terms
-    drive_tcp_height(env, 0.08, 1.0, 30)
+    heights = []
+    for _ in range(60):  # up 1 mm per step
+        drive_tcp_height(env, tcp_pos(env)[2] + 0.001, 1.0, 1)
+        mujoco.mj_forward(model, data)
+        tip = data.site_xpos[task.assembly.tip_site][2]
+        terms = task.reward_terms(model, data, squeeze)
+        lifted = pads_touch_plug(env) == (True, True) and not plug_touches_table(env)
+        held = bool(lifted and tip >= 0.025)
+        assert all((terms[name] > 0.0) is held for name in held_terms), (tip, terms)
+        heights.append((tip, held))
+    assert any(held for _, held in heights) and any(
+        tip < 0.025 and not held for tip, held in heights
+    )
     assert pads_touch_plug(env) == (True, True) and not plug_touches_table(env)
-    terms = task.reward_terms(model, data, squeeze)
-    assert all(terms[name] > 0.0 for name in held_terms), terms
     env.close()
 
 
