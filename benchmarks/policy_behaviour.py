@@ -9,9 +9,9 @@ every step it reads the simulation and, per window of ``--window`` steps, prints
 environments still in their first episode:
 
 - ``touch``: both pads touch the plug; ``squeeze``: the gripper command also closes them inside
-  the tail (the task's ``squeezing``); ``held``: squeezed with no plug geom on the table and
-  the tip 2.5 cm up (the task's ``reward_held``: what grasp pays, and bring, align and the
-  orientation terms need);
+  the tail (the task's ``squeezing``); ``held``: squeezed, the tip 2.5 cm up, nothing of the
+  plug on the table or the stand and nothing of the robot on the fixture (the task's
+  ``reward_held``: what grasp pays, and bring, align and the orientation terms need);
 - ``tip_mm``: median height of the plug tip above the table; ``tcp_mm``: of the TCP;
 - ``grasp_mm``: median distance from the TCP to the tail's grasp point;
 - ``cross_deg``: median angle between the fingers' closing axis (TCP y) and the plug's long

@@ -18,7 +18,7 @@ import pytest
 
 import wirecraft
 from wirecraft.assets.connectors import CONNECTORS
-from wirecraft.sensors import touching
+from wirecraft.sensors import body_geom_ids, touching
 from wirecraft.tasks import insertion as ins
 
 # SPEC section 5, written out here (the module constants are checked against them).
@@ -473,7 +473,8 @@ def test_grasp_reward_needs_the_plug_lifted_off_the_table():
 def test_bring_counts_the_height_error_three_times():
     """bring = held * (1 - tanh(d / 0.3 m)), d the distance from the plug tip to the point 3 cm
     before the mouth with the vertical part weighted 3: the port is moved so that the point
-    lies 6 cm beside, behind or above the held tip."""
+    lies 6 cm to either side of the held tip, or 2 cm below it (the stand would hang onto the
+    gripper above it), which all pay the same."""
     env = make()
     env.reset(seed=0)
     unwrapped = env.unwrapped
@@ -483,7 +484,7 @@ def test_bring_counts_the_height_error_three_times():
     squeeze = np.array([0, 0, 0, 0, 0, 0, 1.0])
     mujoco.mj_forward(model, data)
     tip = data.site_xpos[task.assembly.tip_site].copy()
-    for offset, weighted in (((0.06, 0, 0), 0.06), ((0, 0.06, 0), 0.06), ((0, 0, 0.06), 0.18)):
+    for offset in ((0.06, 0, 0), (-0.06, 0, 0), (0, 0.06, 0), (0, 0, -0.02)):
         entry, _, rot = port_frame(env)
         data.mocap_pos[mount] += tip + offset - (entry - ins.PRE_INSERT * rot[:, 0])
         mujoco.mj_forward(model, data)
@@ -491,7 +492,38 @@ def test_bring_counts_the_height_error_three_times():
         assert entry - ins.PRE_INSERT * rot[:, 0] == pytest.approx(tip + offset, abs=1e-9)
         terms = task.reward_terms(model, data, squeeze)
         assert terms["grasp"] == 1.0
-        assert terms["bring"] == pytest.approx(1 - math.tanh(weighted / 0.3), rel=1e-9), offset
+        assert terms["bring"] == pytest.approx(1 - math.tanh(0.06 / 0.3), rel=1e-9), offset
+    env.close()
+
+
+def test_grasp_reward_needs_neither_the_robot_nor_the_plug_on_the_stand():
+    """A plug wedged against the port's stand, or held by a gripper that touches the port or
+    stand, is not paid as held: the port is moved on a grid around the lifted plug, and grasp
+    is 1 exactly where MuJoCo's contact list has neither the plug on the stand nor the robot
+    on the fixture.  Each of the four cases occurs on the grid."""
+    env = make()
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
+    grasp_and_lift(env)
+    mount = model.body("port_mount").mocapid[0]
+    stand = body_geom_ids(model, ["port_mount"])  # the mount's own geoms: the stand
+    squeeze = np.array([0, 0, 0, 0, 0, 0, 1.0])
+    mujoco.mj_forward(model, data)
+    tip = data.site_xpos[task.assembly.tip_site].copy()
+    seen = set()
+    for dx in np.linspace(-0.1, 0.1, 9):
+        for dy in np.linspace(-0.12, 0.04, 9):
+            entry, _, rot = port_frame(env)
+            data.mocap_pos[mount] += tip + (dx, dy, 0.0) - (entry - ins.PRE_INSERT * rot[:, 0])
+            mujoco.mj_forward(model, data)
+            plug_on_stand = touching(model, data, task.assembly.plug_contacts, stand)
+            robot_on_fixture = touching(model, data, task.robot_geoms, task.fixture_contacts)
+            assert pads_touch_plug(env) == (True, True) and not plug_touches_table(env)
+            grasp = task.reward_terms(model, data, squeeze)["grasp"]
+            assert grasp == float(not (plug_on_stand or robot_on_fixture)), (dx, dy)
+            seen.add((plug_on_stand, robot_on_fixture))
+    assert len(seen) == 4, seen
     env.close()
 
 

@@ -168,6 +168,12 @@ class InsertionTask(BatchedTask):
             (mujoco.mjtObj.mjOBJ_BODY, self.assembly.plug),  # its own geoms, not the cable's
             (mujoco.mjtObj.mjOBJ_GEOM, "table"),
         )
+        add_contact_found(
+            spec,
+            "plug_on_stand",
+            (mujoco.mjtObj.mjOBJ_BODY, self.assembly.plug),
+            (mujoco.mjtObj.mjOBJ_BODY, "port_mount"),  # the stand's geoms, not the port's
+        )
 
     def bind(self, model, robot) -> None:
         super().bind(model, robot)
@@ -179,6 +185,7 @@ class InsertionTask(BatchedTask):
         self.fixture_contacts = self.port_contacts
         self.held_contacts = self.assembly.plug_contacts
         self.plug_table_sensor = model.sensor_adr[model.sensor("plug_on_table").id]
+        self.plug_stand_sensor = model.sensor_adr[model.sensor("plug_on_stand").id]
         self.retention_eqs = np.array(
             [
                 model.equality(f"plug_retention{k}").id
@@ -333,6 +340,10 @@ class InsertionTask(BatchedTask):
         """(N,) whether any geom of the plug touches the table."""
         return frame.sensordata[:, self.plug_table_sensor] > 0
 
+    def plug_on_stand(self, frame: Frame) -> np.ndarray:
+        """(N,) whether any geom of the plug touches the port's stand (not the port)."""
+        return frame.sensordata[:, self.plug_stand_sensor] > 0
+
     # -- observation ------------------------------------------------------------------------
     def observe_batch(self, frame: Frame) -> np.ndarray:
         index = self.robot_index
@@ -420,17 +431,21 @@ class InsertionTask(BatchedTask):
 
     def reward_held(self, frame: Frame, actions: np.ndarray) -> np.ndarray:
         """(N,) "held" as the reward pays it (grasp, and the terms grasp gates): both pads on
-        the plug, the gripper commanded to squeeze it, the plug off the table and its tip
-        ``HELD_TIP_HEIGHT`` above it (the table top is z = 0).  Without the table rule, PPO
-        learned to pinch the plug end to end and press it onto the table; without the height,
-        to hold it in a pinch too weak to lift it (docs/baselines.md).  Success uses the looser
+        the plug, the gripper commanded to squeeze it, its tip ``HELD_TIP_HEIGHT`` above the
+        table (the table top is z = 0), and neither the table nor the port's stand bearing it:
+        no plug geom on them and no part of the robot on the fixture.  Without the table rule,
+        PPO learned to pinch the plug end to end and press it onto the table; without the
+        height, to hold it in a pinch too weak to lift it; without the stand rule, to wedge the
+        plug against the stand (docs/baselines.md).  Success uses the looser
         ``pads_touching``."""
         tip_height = frame.site_xpos[:, self.assembly.tip_site, 2]
         return (
             self.pads_touching(frame).all(axis=1)
             & self.squeezing(actions)
-            & ~self.plug_on_table(frame)
             & (tip_height >= HELD_TIP_HEIGHT)
+            & ~self.plug_on_table(frame)
+            & ~self.plug_on_stand(frame)
+            & ~self.fixture_collision(frame)
         )
 
     def squeezing(self, actions: np.ndarray) -> np.ndarray:
