@@ -435,9 +435,9 @@ class InsertionTask(BatchedTask):
         table (the table top is z = 0), and neither the table nor the port's stand bearing it:
         no plug geom on them and no part of the robot on the fixture.  Without the table rule,
         PPO learned to pinch the plug end to end and press it onto the table; without the
-        height, to hold it in a pinch too weak to lift it; without the stand rule, to wedge the
-        plug against the stand (docs/baselines.md).  Success uses the looser
-        ``pads_touching``."""
+        height, to hold it in a pinch too weak to lift it; without the fixture rule, to hold
+        it with the gripper pressed on the port or stand (docs/baselines.md).  Success uses
+        the looser ``pads_touching``."""
         tip_height = frame.site_xpos[:, self.assembly.tip_site, 2]
         return (
             self.pads_touching(frame).all(axis=1)
