@@ -470,27 +470,41 @@ def test_grasp_reward_needs_the_plug_lifted_off_the_table():
     env.close()
 
 
+SQUEEZE = np.array([0, 0, 0, 0, 0, 0, 1.0])  # the gripper commanded fully closed
+
+
+def lifted_plug_tip(env) -> np.ndarray:
+    """Reset (seed 0), grasp the plug and lift it; the world position of its tip."""
+    env.reset(seed=0)
+    grasp_and_lift(env)
+    model, data, task = env.unwrapped.model, env.unwrapped.data, env.unwrapped.task
+    mujoco.mj_forward(model, data)
+    return data.site_xpos[task.assembly.tip_site].copy()
+
+
+def move_pre_insert_to(env, point) -> None:
+    """Move the port (its mocap mount) so that the point 3 cm before its mouth is ``point``."""
+    model, data = env.unwrapped.model, env.unwrapped.data
+    entry, _, rot = port_frame(env)
+    data.mocap_pos[model.body("port_mount").mocapid[0]] += point - (
+        entry - ins.PRE_INSERT * rot[:, 0]
+    )
+    mujoco.mj_forward(model, data)
+
+
 def test_bring_counts_the_height_error_three_times():
     """bring = held * (1 - tanh(d / 0.3 m)), d the distance from the plug tip to the point 3 cm
     before the mouth with the vertical part weighted 3: the port is moved so that the point
     lies 6 cm to either side of the held tip, or 2 cm below it (the stand would hang onto the
     gripper above it), which all pay the same."""
     env = make()
-    env.reset(seed=0)
-    unwrapped = env.unwrapped
-    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
-    grasp_and_lift(env)
-    mount = model.body("port_mount").mocapid[0]
-    squeeze = np.array([0, 0, 0, 0, 0, 0, 1.0])
-    mujoco.mj_forward(model, data)
-    tip = data.site_xpos[task.assembly.tip_site].copy()
+    model, data, task = env.unwrapped.model, env.unwrapped.data, env.unwrapped.task
+    tip = lifted_plug_tip(env)
     for offset in ((0.06, 0, 0), (-0.06, 0, 0), (0, 0.06, 0), (0, 0, -0.02)):
-        entry, _, rot = port_frame(env)
-        data.mocap_pos[mount] += tip + offset - (entry - ins.PRE_INSERT * rot[:, 0])
-        mujoco.mj_forward(model, data)
+        move_pre_insert_to(env, tip + offset)
         entry, _, rot = port_frame(env)
         assert entry - ins.PRE_INSERT * rot[:, 0] == pytest.approx(tip + offset, abs=1e-9)
-        terms = task.reward_terms(model, data, squeeze)
+        terms = task.reward_terms(model, data, SQUEEZE)
         assert terms["grasp"] == 1.0
         assert terms["bring"] == pytest.approx(1 - math.tanh(0.06 / 0.3), rel=1e-9), offset
     env.close()
@@ -502,25 +516,17 @@ def test_grasp_reward_needs_neither_the_robot_nor_the_plug_on_the_stand():
     is 1 exactly where MuJoCo's contact list has neither the plug on the stand nor the robot
     on the fixture.  Each of the four cases occurs on the grid."""
     env = make()
-    env.reset(seed=0)
-    unwrapped = env.unwrapped
-    model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
-    grasp_and_lift(env)
-    mount = model.body("port_mount").mocapid[0]
+    model, data, task = env.unwrapped.model, env.unwrapped.data, env.unwrapped.task
     stand = body_geom_ids(model, ["port_mount"])  # the mount's own geoms: the stand
-    squeeze = np.array([0, 0, 0, 0, 0, 0, 1.0])
-    mujoco.mj_forward(model, data)
-    tip = data.site_xpos[task.assembly.tip_site].copy()
+    tip = lifted_plug_tip(env)
     seen = set()
     for dx in np.linspace(-0.1, 0.1, 9):
         for dy in np.linspace(-0.12, 0.04, 9):
-            entry, _, rot = port_frame(env)
-            data.mocap_pos[mount] += tip + (dx, dy, 0.0) - (entry - ins.PRE_INSERT * rot[:, 0])
-            mujoco.mj_forward(model, data)
+            move_pre_insert_to(env, tip + (dx, dy, 0.0))
             plug_on_stand = touching(model, data, task.assembly.plug_contacts, stand)
             robot_on_fixture = touching(model, data, task.robot_geoms, task.fixture_contacts)
             assert pads_touch_plug(env) == (True, True) and not plug_touches_table(env)
-            grasp = task.reward_terms(model, data, squeeze)["grasp"]
+            grasp = task.reward_terms(model, data, SQUEEZE)["grasp"]
             assert grasp == float(not (plug_on_stand or robot_on_fixture)), (dx, dy)
             seen.add((plug_on_stand, robot_on_fixture))
     assert len(seen) == 4, seen
