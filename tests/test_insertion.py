@@ -366,6 +366,9 @@ def plug_touches_table(env) -> bool:
     )
 
 
+SQUEEZE = np.array([0, 0, 0, 0, 0, 0, 1.0])  # the gripper commanded fully closed
+
+
 def grasp_and_lift(env) -> None:
     """Lay the plug under the open gripper, close on its tail and lift it 8 cm."""
     grasp_on_table(env)
@@ -447,18 +450,17 @@ def test_grasp_reward_needs_the_plug_lifted_off_the_table():
     env.reset(seed=0)
     unwrapped = env.unwrapped
     model, data, task = unwrapped.model, unwrapped.data, unwrapped.task
-    squeeze = np.array([0, 0, 0, 0, 0, 0, 1.0])
     held_terms = ("grasp", "bring", "align", "port_orientation", "roll")
     grasp_on_table(env)
     assert pads_touch_plug(env) == (True, True) and plug_touches_table(env)
-    terms = task.reward_terms(model, data, squeeze)
+    terms = task.reward_terms(model, data, SQUEEZE)
     assert all(terms[name] == 0.0 for name in held_terms), terms
     heights = []
     for _ in range(60):  # up 1 mm per step
         drive_tcp_height(env, tcp_pos(env)[2] + 0.001, 1.0, 1)
         mujoco.mj_forward(model, data)
         tip = data.site_xpos[task.assembly.tip_site][2]
-        terms = task.reward_terms(model, data, squeeze)
+        terms = task.reward_terms(model, data, SQUEEZE)
         lifted = pads_touch_plug(env) == (True, True) and not plug_touches_table(env)
         held = bool(lifted and tip >= 0.025)
         assert all((terms[name] > 0.0) is held for name in held_terms), (tip, terms)
@@ -468,9 +470,6 @@ def test_grasp_reward_needs_the_plug_lifted_off_the_table():
     )
     assert pads_touch_plug(env) == (True, True) and not plug_touches_table(env)
     env.close()
-
-
-SQUEEZE = np.array([0, 0, 0, 0, 0, 0, 1.0])  # the gripper commanded fully closed
 
 
 def lifted_plug_tip(env) -> np.ndarray:
