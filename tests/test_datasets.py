@@ -500,6 +500,29 @@ def test_a_failed_episode_leaves_no_partial_video(tmp_path):
 
 
 # -- interruptions ---------------------------------------------------------------------------------
+def test_metadata_half_written_at_a_hard_kill_is_restored_from_the_commit(tmp_path):
+    """lerobot rewrites info.json, stats.json and tasks.parquet in place: a SIGKILL during
+    that write leaves them truncated (CI caught an empty info.json).  Reopening restores
+    them from the commit record; the dataset then loads with every committed episode."""
+    rng = np.random.default_rng(5)
+    root = tmp_path / "ds"
+    episodes = [random_episode(rng) for _ in range(3)]
+    writer = EpisodeWriter.create(root, ROUTING_FEATURES, 30, commit_every=10)
+    writer.add_episode(episodes[0])
+    writer.commit()
+    writer.add_episode(episodes[1])  # not committed: the writer is abandoned as at a kill
+    for rel, keep in (("meta/info.json", 0), ("meta/stats.json", 40), ("meta/tasks.parquet", 9)):
+        path = root / rel
+        path.write_bytes(path.read_bytes()[:keep])
+    with EpisodeWriter.open(root, commit_every=1) as reopened:
+        assert reopened.num_episodes == 1
+        assert reopened.add_episode(episodes[2]) == 1
+    dataset = load(root)
+    assert dataset.num_episodes == 2
+    for index, episode in ((0, episodes[0]), (1, episodes[2])):
+        assert np.allclose(column(dataset, "observation.state", index), episode.state, atol=1e-6)
+
+
 # Subprocess runs use 10 fps and 32 x 32 images (a third of the rendering); they are compared
 # with ``run_episode`` of the same settings, which is what an uninterrupted run writes.
 QUICK = CollectSettings(

@@ -103,6 +103,18 @@ def read_commit(root: str | os.PathLike) -> dict | None:
     return record
 
 
+def _read_or_none(path: Path, read):
+    """``read(path)``, or None where the file is missing or half-written: lerobot rewrites
+    ``info.json``, ``stats.json`` and ``tasks.parquet`` in place, so a hard kill during that
+    write leaves a truncated file, which the commit record's copy replaces."""
+    if not path.is_file():
+        return None
+    try:
+        return read(path)
+    except Exception:  # json.JSONDecodeError, pyarrow.ArrowInvalid, ...: the content is lost
+        return None
+
+
 def recover(root: str | os.PathLike) -> dict:
     """Roll the dataset at ``root`` back to its last commit; returns what was done:
     ``{"episodes": committed, "removed": [relative paths], "restored_metadata": bool}``.
@@ -138,7 +150,7 @@ def recover(root: str | os.PathLike) -> dict:
     restored = False
     for rel, content in ((INFO_FILE, record["info"]), (STATS_FILE, record["stats"])):
         path = root / rel
-        current = json.loads(path.read_text()) if path.is_file() else None
+        current = _read_or_none(path, lambda p: json.loads(p.read_text()))
         if content is None:
             if path.exists():
                 path.unlink()
@@ -147,14 +159,15 @@ def recover(root: str | os.PathLike) -> dict:
             write_json_atomic(path, content)
             restored = True
     tasks = record["tasks"]
-    current_tasks = list(load_tasks(root).index) if (root / TASKS_FILE).is_file() else []
-    if current_tasks != tasks:
+    tasks_path = root / TASKS_FILE
+    current_tasks = _read_or_none(tasks_path, lambda _: list(load_tasks(root).index))
+    if current_tasks != tasks and (tasks or tasks_path.exists()):
         if tasks:
             frame = pd.DataFrame({"task_index": range(len(tasks))}, index=pd.Index(tasks))
             frame.index.name = "task"
             write_tasks(frame, root)
         else:
-            (root / TASKS_FILE).unlink()
+            tasks_path.unlink()
         restored = True
     return {"episodes": record["episodes"], "removed": removed, "restored_metadata": restored}
 
