@@ -173,6 +173,27 @@ class WireCraftVectorEnv(VectorEnv):
         infos = self._merge_infos(infos, step_infos)
         return self._obs_copy(), rewards, terminations, truncations, infos
 
+    def set_states(self, ids, states: list[dict]):
+        """Put environments ``ids`` into ``states`` (``WireCraftEnv.get_state`` snapshots, e.g.
+        of another run of the same task and model) between steps; returns the observations of
+        those environments, (len(ids), ...), also written into the next step's batch."""
+        ids = [int(i) for i in ids]
+        if len(ids) != len(states):
+            raise ValueError(f"set_states: {len(ids)} ids for {len(states)} states")
+        for i, state in zip(ids, states, strict=True):
+            if not 0 <= i < self.num_envs:
+                raise ValueError(f"set_states: no environment {i} of {self.num_envs}")
+            self.envs[i].set_state(state)
+            self._write_obs(i, self.envs[i]._observe())
+        if self.batched:
+            self._load_rows(ids)
+        obs = self._obs_copy()
+        if isinstance(obs, dict):
+            return {
+                k: [v[i] for i in ids] if isinstance(v, tuple) else v[ids] for k, v in obs.items()
+            }
+        return obs[ids]
+
     def close_extras(self, **kwargs) -> None:
         for env in self.envs:
             env.close()

@@ -83,9 +83,18 @@ class PPOConfig:
     save_interval: int = 50  # iterations between checkpoints
     seed: int = 0
     threads: int = 0  # physics threads of the vector env (0: all CPUs)
+    # Not in the reference: the fraction of training episodes that start part-way through a
+    # successful scripted-expert episode (rl/expert_starts.py), from states recorded every
+    # expert_start_stride control steps of expert_start_episodes episodes.  0: fresh resets only.
+    expert_starts: float = 0.0
+    expert_start_episodes: int = 64
+    expert_start_stride: int = 10
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
+        _fraction(owner, "expert_starts", self.expert_starts)
+        _int_at_least(owner, "expert_start_episodes", self.expert_start_episodes, 1)
+        _int_at_least(owner, "expert_start_stride", self.expert_start_stride, 1)
         for name in ("num_envs", "num_steps_per_env", "max_iterations", "num_mini_batches"):
             _int_at_least(owner, name, getattr(self, name), 1)
         _int_at_least(owner, "num_learning_epochs", self.num_learning_epochs, 1)

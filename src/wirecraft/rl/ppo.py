@@ -59,7 +59,7 @@ def make_vec_env_adapter(venv, *, reward_scale: float, seed: int, obs_groups: Ca
             self.venv = venv
             self.num_envs = venv.num_envs
             self.num_actions = int(venv.single_action_space.shape[0])
-            self.max_episode_length = int(venv.envs[0].max_steps)
+            self.max_episode_length = int(venv.unwrapped.envs[0].max_steps)
             self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long)
             self.device = "cpu"
             self.cfg = {"reward_scale": reward_scale}

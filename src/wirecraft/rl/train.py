@@ -243,6 +243,8 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
     venv = wirecraft.make_vec(
         task, cfg.num_envs, threads=cfg.threads, **env_kwargs, **TRAINING_VEC_OPTIONS
     )
+    if cfg.expert_starts > 0:
+        venv = _with_expert_starts(venv, cfg, run, iterations_done, progress)
     # a resumed run starts new episodes rather than replaying the first ones
     env = ppo.make_vec_env_adapter(
         venv,
@@ -267,6 +269,31 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
             ppo.learn(runner, total)
     finally:
         venv.close()
+
+
+def _with_expert_starts(venv, cfg, run: Run, iterations_done: int, progress: bool):
+    from wirecraft.rl import expert_starts
+
+    data = run.data
+    if data["algorithm"] != "ppo":
+        raise ValueError(f"expert_starts is for state PPO, not {data['algorithm']}")
+
+    def record():
+        return expert_starts.record_expert_states(
+            data["task"],
+            data["env_kwargs"],
+            cfg.expert_start_episodes,
+            num_envs=min(cfg.num_envs, 32),
+            seed=cfg.seed + 104729,  # not the training episodes' seeds
+            stride=cfg.expert_start_stride,
+            threads=cfg.threads,
+            progress=progress,
+        )
+
+    states = expert_starts.load_or_record(run.dir, record)
+    return expert_starts.ExpertStarts(
+        venv, states, cfg.expert_starts, seed=cfg.seed + 7919 * iterations_done + 1
+    )
 
 
 def _vision_encoder(cfg, run: Run, progress: bool):
