@@ -102,6 +102,33 @@ def test_expert_starts_replace_the_chosen_fraction_of_resets(states):
         venv.close()
 
 
+def test_the_training_log_counts_fresh_episodes_apart(states):
+    import torch
+
+    from wirecraft.rl.ppo import make_vec_env_adapter
+
+    # 6-step episodes; an expert state (step count >= 40, or 0) ends after 1-6 steps
+    venv = wirecraft.make_vec("insertion", 4, threads=1, episode_seconds=0.1, **KW, **TRAINING)
+    adapter = make_vec_env_adapter(ExpertStarts(venv, states, 0.5, 2), reward_scale=1.0, seed=0)
+    fresh = started = 0
+    for _ in range(12):
+        _, _, dones, extras = adapter.step(torch.zeros(4, 7))
+        if "log" not in extras:
+            continue
+        log = extras["log"]
+        from_expert = log["Episode/expert_start"]
+        assert len(from_expert) == int(dones.sum())
+        started += int(from_expert.sum())
+        count = int((from_expert == 0).sum())
+        fresh += count
+        if count:
+            assert len(log["Episode/fresh/insert_success_any"]) == count
+        else:
+            assert "Episode/fresh/insert_success_any" not in log
+    assert fresh and started
+    venv.close()
+
+
 @pytest.mark.slow
 def test_ppo_with_expert_starts_records_once_and_resumes_from_the_same_states(
     tmp_path, monkeypatch

@@ -175,6 +175,23 @@ def test_episode_tracker_sums_each_reward_term_per_episode():
     assert [r["reward/grasp"] for r in records] == [1.5, 0.0]
 
 
+def test_episode_tracker_tells_episodes_started_from_an_expert_state_apart():
+    tracker = EpisodeTracker(3)
+    no, rewards = np.zeros(3, bool), np.zeros(3)
+    assert "expert_start" not in tracker.step(rewards, no, np.ones(3, bool), {})[0]
+    tracker.started({"expert_start": np.array([True, False, True])})  # the first reset
+    # env 1 ends: its record says fresh; its next episode (restarted from a state) is noted
+    ended = np.array([False, True, False])
+    records = tracker.step(rewards, no, ended, {"expert_start": np.array([False, True, False])})
+    assert [r["expert_start"] for r in records] == [0.0]
+    # all end: 0 and 2 began from expert states at the first reset, 1 at the step before
+    everyone = np.ones(3, bool)
+    records = tracker.step(rewards, no, everyone, {"expert_start": np.zeros(3, bool)})
+    assert [r["expert_start"] for r in records] == [1.0, 1.0, 1.0]
+    records = tracker.step(rewards, no, everyone, {"expert_start": np.zeros(3, bool)})
+    assert [r["expert_start"] for r in records] == [0.0, 0.0, 0.0]
+
+
 def test_rollouts_use_one_torch_thread_and_the_update_keeps_its_threads():
     import types
 

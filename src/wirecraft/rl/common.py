@@ -126,6 +126,18 @@ class EpisodeTracker:
         # Per-term returns ("reward/bring", ...): which terms a policy collects shows what it
         # has learned long before any success flag moves.
         self.term_returns: dict[str, np.ndarray] = {}
+        # Episodes started from an expert's state (rl/expert_starts.py), as the vector env's
+        # ``infos["expert_start"]`` marked them at their reset; None: no such starts.
+        self.expert_start: np.ndarray | None = None
+
+    def started(self, infos: dict, ids=None) -> None:
+        """Note how the episodes of ``ids`` (default: all) began, from their reset's infos."""
+        if "expert_start" not in infos:
+            return
+        if self.expert_start is None:
+            self.expert_start = np.zeros(self.num_envs, bool)
+        ids = np.arange(self.num_envs) if ids is None else ids
+        self.expert_start[ids] = np.asarray(infos["expert_start"], bool)[ids]
 
     def step(self, rewards, terminated, truncated, infos) -> list[dict[str, float]]:
         """Account for one step; returns one record per episode that ended in it."""
@@ -152,6 +164,8 @@ class EpisodeTracker:
                 record[key] = float(flags[key][i])
                 record[f"{key}_any"] = float(self.ever[key][i])
             record["diverged"] = float(diverged[i])
+            if self.expert_start is not None:
+                record["expert_start"] = float(self.expert_start[i])
             for key, sums in self.term_returns.items():
                 record[key] = float(sums[i])
                 sums[i] = 0.0
@@ -160,6 +174,7 @@ class EpisodeTracker:
             self.lengths[i] = 0
             for key in EPISODE_FLAGS:
                 self.ever[key][i] = False
+        self.started(infos, np.flatnonzero(done))
         return records
 
 

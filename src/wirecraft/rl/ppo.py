@@ -40,6 +40,11 @@ def _torch():
     return torch
 
 
+# Logged again over the episodes that started from a fresh reset, when some started from an
+# expert's state (``Episode/fresh/...``).
+FRESH_KEYS = ("return", "reach_success_any", "insert_success_any", "insert_success")
+
+
 def state_observations(obs) -> dict:
     """The observation groups of state PPO: the privileged state for actor and critic."""
     return {"policy": obs}
@@ -66,7 +71,8 @@ def make_vec_env_adapter(venv, *, reward_scale: float, seed: int, obs_groups: Ca
             self.reward_scale = reward_scale
             self.tracker = EpisodeTracker(self.num_envs)
             self.env_steps = 0
-            obs, _ = venv.reset(seed=seed)
+            obs, infos = venv.reset(seed=seed)
+            self.tracker.started(infos)
             self._obs = self._tensordict(obs)
 
         def _tensordict(self, obs):
@@ -98,6 +104,11 @@ def make_vec_env_adapter(venv, *, reward_scale: float, seed: int, obs_groups: Ca
                     f"Episode/{key}": torch.tensor([r[key] for r in records], dtype=torch.float32)
                     for key in records[0]
                 }
+                # With expert starts, the honest training curve is that of fresh episodes.
+                fresh = [r for r in records if r.get("expert_start") == 0.0]
+                for key in FRESH_KEYS if fresh else ():
+                    values = torch.tensor([r[key] for r in fresh], dtype=torch.float32)
+                    extras["log"][f"Episode/fresh/{key}"] = values
             return (
                 self._obs,
                 torch.as_tensor(rewards * self.reward_scale, dtype=torch.float32),
