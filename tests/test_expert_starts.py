@@ -6,12 +6,14 @@ the snapshot holds everything the step depends on."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 import wirecraft
 from wirecraft.experts import InsertionExpert
-from wirecraft.rl import train
+from wirecraft.rl import RUN_FILE, train
 from wirecraft.rl.config import PPOConfig
 from wirecraft.rl.expert_starts import STATES_FILE, ExpertStarts, record_expert_states
 
@@ -32,6 +34,11 @@ def test_recorded_states_are_strided_steps_of_successful_episodes_before_success
         assert steps[a:b] == list(range(0, 40 * (b - a), 40))
     # the expert needs ~280 steps to seat the plug: every episode got past the grasp
     assert all(b - a >= 5 for a, b in zip(starts, starts[1:] + [len(steps)], strict=True))
+    again = record_expert_states("insertion", KW, 2, num_envs=2, seed=3, stride=40, threads=1)
+    assert len(again) == len(states)  # the same seed, the same states (expert choices included)
+    assert all(
+        np.array_equal(a["physics"], b["physics"]) for a, b in zip(again, states, strict=True)
+    )
     env = wirecraft.make("insertion", **KW)
     for state in states:
         env.unwrapped.set_state(state)
@@ -130,7 +137,7 @@ def test_the_training_log_counts_fresh_episodes_apart(states):
 
 
 @pytest.mark.slow
-def test_ppo_with_expert_starts_records_once_and_resumes_from_the_same_states(
+def test_ppo_with_expert_starts_and_cloning_records_once_and_resumes_from_the_same_states(
     tmp_path, monkeypatch
 ):
     import torch
@@ -148,9 +155,15 @@ def test_ppo_with_expert_starts_records_once_and_resumes_from_the_same_states(
         "expert_starts": 1.0,
         "expert_start_episodes": 1,
         "expert_start_stride": 100,
+        "bc_init_transitions": 480,  # one expert episode
+        "bc_init_epochs": 1,
     }
     run_dir = tmp_path / "ppo"
     train("ppo", "insertion", KW, run_dir, 16, overrides=tiny, progress=False)
+    bc_init = json.loads((run_dir / RUN_FILE).read_text())["bc_init"]
+    assert (
+        bc_init["transitions"] == 480 and np.isfinite(list(bc_init["final_losses"].values())).all()
+    )
     saved = torch.load(run_dir / STATES_FILE, weights_only=False)
     assert [s["steps"] for s in saved] == [0, 100, 200]  # the expert seats the plug at ~280
 

@@ -192,6 +192,66 @@ def test_episode_tracker_tells_episodes_started_from_an_expert_state_apart():
     assert [r["expert_start"] for r in records] == [0.0, 0.0, 0.0]
 
 
+def test_behaviour_clone_init_fits_actions_and_discounted_returns():
+    """Synthetic demonstrations with a known answer: actions a linear map of the state, a
+    reward of 0.1 per step, so the return t steps before the end of a T-step episode is
+    0.1 (1 - gamma^t) / (1 - gamma)."""
+    from types import SimpleNamespace
+
+    import torch
+    from rsl_rl.utils import resolve_class
+    from tensordict import TensorDict
+
+    from wirecraft.rl.ppo import behaviour_clone_init, build_actor, runner_config
+
+    torch.manual_seed(0)  # the networks' initial weights
+    cfg = PPOConfig(actor_hidden_dims=(32,), critic_hidden_dims=(32,))
+    steps, episodes, gamma = 20, 40, 0.9
+    gen = torch.Generator().manual_seed(0)
+    dim = 6
+    obs = 5.0 + 3.0 * torch.rand(steps * episodes, dim, generator=gen)  # far from N(0, 1)
+    time_left = torch.arange(steps, 0, -1).repeat(episodes).float()
+    obs[:, 0] = time_left  # the critic can tell where in the episode a state is
+    mixing = torch.randn(dim, 7, generator=gen) * 0.3
+    actions = torch.tanh((obs - 6.5) @ mixing)
+    demos = {"observations": obs, "actions": actions, "rewards": torch.full((len(obs), 1), 0.1)}
+    critic_cls, critic_kwargs = resolve_class(runner_config(cfg)["critic"])
+    example = TensorDict({"policy": obs[:1]}, batch_size=[1])
+    critic = critic_cls(example, {"critic": ["policy"]}, "critic", 1, **critic_kwargs)
+    actor = build_actor(cfg, dim, 7)
+    runner = SimpleNamespace(alg=SimpleNamespace(actor=actor, critic=critic))
+    with torch.no_grad():
+        before = float(
+            torch.nn.functional.mse_loss(actor(TensorDict({"policy": obs}, [len(obs)])), actions)
+        )
+    losses = behaviour_clone_init(
+        runner, demos, episode_steps=steps, gamma=gamma, epochs=150, seed=0, progress=False
+    )
+    td = TensorDict({"policy": obs}, batch_size=[len(obs)])
+    with torch.no_grad():
+        after = float(torch.nn.functional.mse_loss(actor(td), actions))
+        values = critic(td)[:, 0]
+    expected = 0.1 * (1 - gamma**time_left) / (1 - gamma)
+    assert after < 0.05 * before and losses["actor"] < 0.05 * before
+    # per step of the episode (averaged over the episodes' other features)
+    per_step = values.reshape(episodes, steps).mean(0)
+    # a warm start, not an exact fit: the shape, and within ~11 % of the range
+    assert bool((per_step[:-1] > per_step[1:]).all())  # more time left, more return
+    torch.testing.assert_close(per_step, expected[:steps], atol=0.1, rtol=0)
+    mean = actor.obs_normalizer._mean[0]
+    torch.testing.assert_close(mean, obs.mean(0), rtol=1e-4, atol=1e-4)
+    with pytest.raises(ValueError, match="whole 20-step episode"):
+        behaviour_clone_init(
+            runner,
+            {k: v[:10] for k, v in demos.items()},
+            episode_steps=steps,
+            gamma=gamma,
+            epochs=1,
+            seed=0,
+            progress=False,
+        )
+
+
 def test_rollouts_use_one_torch_thread_and_the_update_keeps_its_threads():
     import types
 

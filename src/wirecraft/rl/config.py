@@ -89,9 +89,16 @@ class PPOConfig:
     expert_starts: float = 0.0
     expert_start_episodes: int = 64
     expert_start_stride: int = 10
+    # Not in the reference: before the first iteration, fit the actor to bc_init_transitions
+    # scripted-expert transitions and the critic to their returns (ppo.behaviour_clone_init),
+    # bc_init_epochs passes.  0: PPO starts from random weights.
+    bc_init_transitions: int = 0
+    bc_init_epochs: int = 10
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
+        _int_at_least(owner, "bc_init_transitions", self.bc_init_transitions, 0)
+        _int_at_least(owner, "bc_init_epochs", self.bc_init_epochs, 1)
         _fraction(owner, "expert_starts", self.expert_starts)
         _int_at_least(owner, "expert_start_episodes", self.expert_start_episodes, 1)
         _int_at_least(owner, "expert_start_stride", self.expert_start_stride, 1)

@@ -53,7 +53,7 @@ def record_expert_states(
     venv = wirecraft.make_vec(
         task, num_envs, threads=threads, diagnostics=False, **{**env_kwargs, "control": control}
     )
-    expert = expert_cls(venv)
+    expert = expert_cls(venv, seed=seed)  # its random perturbations follow the seed too
     obs, _ = venv.reset(seed=seed)
     expert.reset()
     pending: list[list[dict]] = [[] for _ in range(num_envs)]

@@ -300,6 +300,67 @@ def resume(runner, checkpoint: Path) -> dict:
     return infos
 
 
+def behaviour_clone_init(
+    runner,
+    demos: dict,
+    *,
+    episode_steps: int,
+    gamma: float,
+    epochs: int,
+    seed: int,
+    batch_size: int = 256,
+    learning_rate: float = 1e-3,
+    progress: bool = True,
+) -> dict[str, float]:
+    """Warm start of a fresh PPO run from scripted-expert ``demos`` (``sacfd.
+    collect_demonstrations``: whole episodes of ``episode_steps`` transitions, in order, rewards
+    already scaled): both observation normalisers take the demonstrations' statistics, the
+    actor's mean is fitted to the demonstrated actions and the critic to their discounted
+    returns (MSE), so that PPO's first updates start from the expert's behaviour and a value
+    function that knows it.  Returns the last epoch's mean losses."""
+    from tensordict import TensorDict
+    from tqdm import tqdm
+
+    torch = _torch()
+    whole = len(demos["actions"]) // episode_steps * episode_steps
+    if whole == 0:
+        raise ValueError(f"behaviour cloning needs at least one whole {episode_steps}-step episode")
+    obs = demos["observations"][:whole]
+    actions = demos["actions"][:whole]
+    rewards = demos["rewards"][:whole, 0].reshape(-1, episode_steps)
+    returns = torch.zeros_like(rewards)
+    running = torch.zeros(len(rewards))
+    for t in range(episode_steps - 1, -1, -1):
+        running = rewards[:, t] + gamma * running
+        returns[:, t] = running
+    returns = returns.reshape(-1, 1)
+    actor, critic = runner.alg.actor, runner.alg.critic
+    everything = TensorDict({"policy": obs}, batch_size=[whole])
+    actor.train()
+    critic.train()
+    actor.update_normalization(everything)
+    critic.update_normalization(everything)
+    optimizer = torch.optim.Adam([*actor.parameters(), *critic.parameters()], lr=learning_rate)
+    generator = torch.Generator().manual_seed(seed)
+    losses = {"actor": float("nan"), "critic": float("nan")}
+    for _ in tqdm(range(epochs), desc="behaviour cloning", disable=not progress):
+        order = torch.randperm(whole, generator=generator)
+        sums, batches = {"actor": 0.0, "critic": 0.0}, 0
+        for start in range(0, whole, batch_size):
+            idx = order[start : start + batch_size]
+            batch = TensorDict({"policy": obs[idx]}, batch_size=[len(idx)])
+            actor_loss = torch.nn.functional.mse_loss(actor(batch), actions[idx])
+            critic_loss = torch.nn.functional.mse_loss(critic(batch), returns[idx])
+            optimizer.zero_grad()
+            (actor_loss + critic_loss).backward()
+            optimizer.step()
+            sums["actor"] += float(actor_loss.detach())
+            sums["critic"] += float(critic_loss.detach())
+            batches += 1
+        losses = {k: v / batches for k, v in sums.items()}
+    return losses
+
+
 def iterations_for(cfg: PPOConfig, steps: int | None) -> int:
     """Total iterations: ``cfg.max_iterations``, or enough for ``steps`` env steps."""
     if steps is None:

@@ -273,7 +273,7 @@ def collect_demonstrations(
             f"control={expert_cls.CONTROL!r}; got control={control!r}"
         )
     venv = wirecraft.make_vec(task, num_envs, threads=threads, **{**env_kwargs, "control": control})
-    expert = expert_cls(venv)
+    expert = expert_cls(venv, seed=seed)  # its random perturbations follow the seed too
     obs, _ = venv.reset(seed=seed)
     expert.reset()
     pending = [[] for _ in range(num_envs)]

@@ -229,6 +229,8 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
     iterations_done = int(data.get("iterations_done", 0))
     torch.manual_seed(cfg.seed + iterations_done)
     vision = data["algorithm"] == "vision-ppo"
+    if vision and (cfg.bc_init_transitions or cfg.expert_starts):
+        raise ValueError("bc_init_transitions and expert_starts are for state PPO")
     obs_groups, train_cfg, bc_actor = None, ppo.runner_config(cfg), None
     if vision:
         encoder, bc_actor = _vision_encoder(cfg, run, progress)
@@ -259,6 +261,8 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
         )
         if checkpoint is not None:
             ppo.resume(runner, checkpoint)
+        elif cfg.bc_init_transitions and not vision:
+            _behaviour_clone_init(runner, cfg, run, venv, progress)
         elif bc_actor is not None:
             runner.alg.get_policy().load_state_dict(bc_actor.state_dict())
         total = ppo.iterations_for(cfg, steps)
@@ -271,12 +275,38 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
         venv.close()
 
 
+def _behaviour_clone_init(runner, cfg, run: Run, venv, progress: bool) -> None:
+    from wirecraft.rl import ppo
+    from wirecraft.rl.sacfd import collect_demonstrations
+
+    data = run.data
+    demos = collect_demonstrations(
+        data["task"],
+        data["env_kwargs"],
+        cfg.bc_init_transitions,
+        num_envs=min(cfg.num_envs, 32),
+        seed=cfg.seed + 15_485_863,  # not the training episodes' seeds
+        reward_scale=cfg.reward_scale,
+        threads=cfg.threads,
+        progress=progress,
+    )
+    losses = ppo.behaviour_clone_init(
+        runner,
+        demos,
+        episode_steps=int(venv.unwrapped.envs[0].max_steps),
+        gamma=cfg.gamma,
+        epochs=cfg.bc_init_epochs,
+        seed=cfg.seed,
+        progress=progress,
+    )
+    run.data["bc_init"] = {"transitions": len(demos["actions"]), "final_losses": losses}
+    run.save()
+
+
 def _with_expert_starts(venv, cfg, run: Run, iterations_done: int, progress: bool):
     from wirecraft.rl import expert_starts
 
     data = run.data
-    if data["algorithm"] != "ppo":
-        raise ValueError(f"expert_starts is for state PPO, not {data['algorithm']}")
 
     def record():
         return expert_starts.record_expert_states(

@@ -220,7 +220,7 @@ def collect_teacher_data(
 
     venv = wirecraft.make_vec(task, num_envs, threads=threads, **env_kwargs)
     if teacher is None:
-        actor = expert_class(task)(venv)
+        actor = expert_class(task)(venv, seed=seed)
 
         def teach(obs):
             return actor.act(obs)
