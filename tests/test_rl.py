@@ -194,8 +194,8 @@ def test_episode_tracker_tells_episodes_started_from_an_expert_state_apart():
 
 def test_behaviour_clone_init_fits_actions_and_discounted_returns():
     """Synthetic demonstrations with a known answer: actions a linear map of the state, a
-    reward of 0.1 per step, so the return t steps before the end of a T-step episode is
-    0.1 (1 - gamma^t) / (1 - gamma)."""
+    reward of 100 per step (a seated plug pays ~17 after reward_scale), so the return t steps
+    before the end of a T-step episode is 100 (1 - gamma^t) / (1 - gamma), up to ~880."""
     from types import SimpleNamespace
 
     import torch
@@ -214,7 +214,7 @@ def test_behaviour_clone_init_fits_actions_and_discounted_returns():
     obs[:, 0] = time_left  # the critic can tell where in the episode a state is
     mixing = torch.randn(dim, 7, generator=gen) * 0.3
     actions = torch.tanh((obs - 6.5) @ mixing)
-    demos = {"observations": obs, "actions": actions, "rewards": torch.full((len(obs), 1), 0.1)}
+    demos = {"observations": obs, "actions": actions, "rewards": torch.full((len(obs), 1), 100.0)}
     critic_cls, critic_kwargs = resolve_class(runner_config(cfg)["critic"])
     example = TensorDict({"policy": obs[:1]}, batch_size=[1])
     critic = critic_cls(example, {"critic": ["policy"]}, "critic", 1, **critic_kwargs)
@@ -231,13 +231,13 @@ def test_behaviour_clone_init_fits_actions_and_discounted_returns():
     with torch.no_grad():
         after = float(torch.nn.functional.mse_loss(actor(td), actions))
         values = critic(td)[:, 0]
-    expected = 0.1 * (1 - gamma**time_left) / (1 - gamma)
+    expected = 100.0 * (1 - gamma**time_left) / (1 - gamma)
     assert after < 0.05 * before and losses["actor"] < 0.05 * before
     # per step of the episode (averaged over the episodes' other features)
     per_step = values.reshape(episodes, steps).mean(0)
     # a warm start, not an exact fit: the shape, and within ~11 % of the range
     assert bool((per_step[:-1] > per_step[1:]).all())  # more time left, more return
-    torch.testing.assert_close(per_step, expected[:steps], atol=0.1, rtol=0)
+    torch.testing.assert_close(per_step, expected[:steps], atol=100.0, rtol=0)
     mean = actor.obs_normalizer._mean[0]
     torch.testing.assert_close(mean, obs.mean(0), rtol=1e-4, atol=1e-4)
     with pytest.raises(ValueError, match="whole 20-step episode"):

@@ -316,8 +316,9 @@ def behaviour_clone_init(
     collect_demonstrations``: whole episodes of ``episode_steps`` transitions, in order, rewards
     already scaled): both observation normalisers take the demonstrations' statistics, the
     actor's mean is fitted to the demonstrated actions and the critic to their discounted
-    returns (MSE), so that PPO's first updates start from the expert's behaviour and a value
-    function that knows it.  Returns the last epoch's mean losses."""
+    returns (MSE, on standardised returns), so that PPO's first updates start from the
+    expert's behaviour and a value function that knows it.  Returns the last epoch's mean
+    losses (the critic's in the returns' units)."""
     from tensordict import TensorDict
     from tqdm import tqdm
 
@@ -334,7 +335,13 @@ def behaviour_clone_init(
         running = rewards[:, t] + gamma * running
         returns[:, t] = running
     returns = returns.reshape(-1, 1)
+    # Returns run to ~1e3 (a seated plug pays 1000 x reward_scale per step), far beyond what a
+    # few thousand Adam steps of size ~learning_rate move a freshly initialised output to.
+    # The critic is fitted to standardised returns, and its output layer then scaled back.
+    centre, spread = returns.mean(), returns.std().clamp_min(1e-6)
+    targets = (returns - centre) / spread
     actor, critic = runner.alg.actor, runner.alg.critic
+    output = [m for m in critic.mlp.modules() if isinstance(m, torch.nn.Linear)][-1]
     everything = TensorDict({"policy": obs}, batch_size=[whole])
     actor.train()
     critic.train()
@@ -350,7 +357,7 @@ def behaviour_clone_init(
             idx = order[start : start + batch_size]
             batch = TensorDict({"policy": obs[idx]}, batch_size=[len(idx)])
             actor_loss = torch.nn.functional.mse_loss(actor(batch), actions[idx])
-            critic_loss = torch.nn.functional.mse_loss(critic(batch), returns[idx])
+            critic_loss = torch.nn.functional.mse_loss(critic(batch), targets[idx])
             optimizer.zero_grad()
             (actor_loss + critic_loss).backward()
             optimizer.step()
@@ -358,6 +365,10 @@ def behaviour_clone_init(
             sums["critic"] += float(critic_loss.detach())
             batches += 1
         losses = {k: v / batches for k, v in sums.items()}
+    with torch.no_grad():
+        output.weight.mul_(spread)
+        output.bias.mul_(spread).add_(centre)
+    losses["critic"] *= float(spread) ** 2  # in the returns' own units
     return losses
 
 
