@@ -40,20 +40,11 @@ def record_expert_states(
     cannot drive this control mode or succeeds in fewer than half of its episodes."""
     from tqdm import tqdm
 
-    import wirecraft
-    from wirecraft.experts import expert_class
+    from wirecraft.rl.common import expert_vec_env
 
-    expert_cls = expert_class(task)
-    control = env_kwargs.get("control") or expert_cls.CONTROL
-    if control != expert_cls.CONTROL:
-        raise ValueError(
-            f"expert starts come from the {task} expert, which needs "
-            f"control={expert_cls.CONTROL!r}; got control={control!r}"
-        )
-    venv = wirecraft.make_vec(
-        task, num_envs, threads=threads, diagnostics=False, **{**env_kwargs, "control": control}
+    expert, venv = expert_vec_env(
+        task, env_kwargs, "expert starts", num_envs, seed, threads=threads, diagnostics=False
     )
-    expert = expert_cls(venv, seed=seed)  # its random perturbations follow the seed too
     obs, _ = venv.reset(seed=seed)
     expert.reset()
     pending: list[list[dict]] = [[] for _ in range(num_envs)]

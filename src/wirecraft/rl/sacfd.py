@@ -33,6 +33,7 @@ from wirecraft.rl.common import (
     EpisodeTracker,
     ProgressTable,
     WallClock,
+    expert_vec_env,
     final_observations,
     state_batch,
     summarize,
@@ -262,18 +263,9 @@ def collect_demonstrations(
     """``transitions`` transitions of the scripted expert, as float32 tensors (rewards already
     scaled).  ``success_only``: keep only whole episodes in which ``success`` was reached
     (giving up after ``max_factor * transitions`` steps)."""
-    import wirecraft
-    from wirecraft.experts import expert_class
-
-    expert_cls = expert_class(task)
-    control = env_kwargs.get("control") or expert_cls.CONTROL
-    if control != expert_cls.CONTROL:
-        raise ValueError(
-            f"SACfD demonstrations come from the {task} expert, which needs "
-            f"control={expert_cls.CONTROL!r}; got control={control!r}"
-        )
-    venv = wirecraft.make_vec(task, num_envs, threads=threads, **{**env_kwargs, "control": control})
-    expert = expert_cls(venv, seed=seed)  # its random perturbations follow the seed too
+    expert, venv = expert_vec_env(
+        task, env_kwargs, "demonstrations", num_envs, seed, threads=threads
+    )
     obs, _ = venv.reset(seed=seed)
     expert.reset()
     pending = [[] for _ in range(num_envs)]

@@ -275,6 +275,11 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
         venv.close()
 
 
+def _expert_collection(cfg, progress: bool) -> dict:
+    """How a PPO run drives the scripted expert for its own data: in up to 32 environments."""
+    return {"num_envs": min(cfg.num_envs, 32), "threads": cfg.threads, "progress": progress}
+
+
 def _behaviour_clone_init(runner, cfg, run: Run, venv, progress: bool) -> None:
     from wirecraft.rl import ppo
     from wirecraft.rl.sacfd import collect_demonstrations
@@ -284,11 +289,9 @@ def _behaviour_clone_init(runner, cfg, run: Run, venv, progress: bool) -> None:
         data["task"],
         data["env_kwargs"],
         cfg.bc_init_transitions,
-        num_envs=min(cfg.num_envs, 32),
         seed=cfg.seed + 15_485_863,  # not the training episodes' seeds
         reward_scale=cfg.reward_scale,
-        threads=cfg.threads,
-        progress=progress,
+        **_expert_collection(cfg, progress),
     )
     losses = ppo.behaviour_clone_init(
         runner,
@@ -313,11 +316,9 @@ def _with_expert_starts(venv, cfg, run: Run, iterations_done: int, progress: boo
             data["task"],
             data["env_kwargs"],
             cfg.expert_start_episodes,
-            num_envs=min(cfg.num_envs, 32),
             seed=cfg.seed + 104729,  # not the training episodes' seeds
             stride=cfg.expert_start_stride,
-            threads=cfg.threads,
-            progress=progress,
+            **_expert_collection(cfg, progress),
         )
 
     states = expert_starts.load_or_record(run.dir, record)
