@@ -14,7 +14,7 @@ import pytest
 import wirecraft
 from wirecraft.experts import InsertionExpert
 from wirecraft.rl import RUN_FILE, train
-from wirecraft.rl.config import PPOConfig
+from wirecraft.rl.config import PPOConfig, VisionPPOConfig
 from wirecraft.rl.expert_starts import STATES_FILE, ExpertStarts, record_expert_states
 
 KW = {"connector": "ethernet"}
@@ -134,6 +134,21 @@ def test_the_training_log_counts_fresh_episodes_apart(states):
             assert "Episode/fresh/insert_success_any" not in log
     assert fresh and started
     venv.close()
+
+
+def test_runs_that_need_the_expert_refuse_another_control_before_writing(tmp_path):
+    out = tmp_path / "run"
+    with pytest.raises(ValueError, match="needs control='cartesian'; got control='joint'"):
+        train("ppo", "insertion", {**KW, "control": "joint"}, out, overrides={"expert_starts": 0.5})
+    # seating's default control is cartesian_fixed; its expert drives cartesian
+    with pytest.raises(ValueError, match="got control='cartesian_fixed'"):
+        train("sacfd", "seating", {}, out)
+    with pytest.raises(ValueError, match="got control='joint'"):
+        train("ppo", "insertion", {"control": "joint"}, out, overrides={"bc_init_transitions": 9})
+    assert not out.exists()
+    for name in ("expert_starts", "bc_init_transitions"):
+        with pytest.raises(ValueError, match=f"{name} is for state PPO"):
+            VisionPPOConfig(**{name: 1})
 
 
 @pytest.mark.slow

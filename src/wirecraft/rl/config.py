@@ -175,6 +175,9 @@ class VisionPPOConfig(PPOConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         owner = type(self).__name__
+        for name in ("expert_starts", "bc_init_transitions"):  # state PPO's; ours clones itself
+            if getattr(self, name):
+                raise ValueError(f"{owner}: {name} is for state PPO; it must be 0 here")
         if self.backbone != "small_cnn" and not self.backbone.startswith("timm:"):
             raise ValueError(
                 f"{owner}: backbone must be 'small_cnn' or 'timm:<model name>', "

@@ -105,6 +105,20 @@ class Run:
 TRAINING_VEC_OPTIONS = {"diagnostics": False, "sync_envs": False}
 
 
+def _check_expert_control(algorithm: str, task: str, env_kwargs: dict, cfg) -> None:
+    """Before anything is written: a run that drives the scripted expert for its data (SACfD's
+    demonstrations, PPO's cloned start or expert starts) needs the expert's control mode."""
+    from wirecraft.rl.common import expert_for
+    from wirecraft.tasks import TASKS
+
+    uses_expert = algorithm == "sacfd" or (
+        algorithm == "ppo" and (cfg.bc_init_transitions or cfg.expert_starts)
+    )
+    if uses_expert:
+        control = env_kwargs.get("control") or TASKS.get(task).default_control
+        expert_for(task, control, f"{algorithm} runs' expert data")
+
+
 def _new_run(algorithm: str, task: str, env_kwargs: dict, cfg, run_dir: Path) -> Run:
     from wirecraft.tasks import TASKS
 
@@ -179,6 +193,7 @@ def train(
                 f"{run_dir} exists and is not an RL run directory; choose another --out"
             )
         cfg = replace(config_class(algorithm)(), **overrides)
+        _check_expert_control(algorithm, _task_family(task), env_kwargs or {}, cfg)
         run = _new_run(algorithm, _task_family(task), dict(env_kwargs or {}), cfg, run_dir)
     with _terminate_as_interrupt():
         if algorithm == "sacfd":
@@ -229,8 +244,6 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
     iterations_done = int(data.get("iterations_done", 0))
     torch.manual_seed(cfg.seed + iterations_done)
     vision = data["algorithm"] == "vision-ppo"
-    if vision and (cfg.bc_init_transitions or cfg.expert_starts):
-        raise ValueError("bc_init_transitions and expert_starts are for state PPO")
     obs_groups, train_cfg, bc_actor = None, ppo.runner_config(cfg), None
     if vision:
         encoder, bc_actor = _vision_encoder(cfg, run, progress)
@@ -261,7 +274,7 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
         )
         if checkpoint is not None:
             ppo.resume(runner, checkpoint)
-        elif cfg.bc_init_transitions and not vision:
+        elif cfg.bc_init_transitions:
             _behaviour_clone_init(runner, cfg, run, venv, progress)
         elif bc_actor is not None:
             runner.alg.get_policy().load_state_dict(bc_actor.state_dict())
