@@ -582,3 +582,27 @@ def test_dict_observation_carries_the_sensors():
     force = obs["wrist_wrench"][:3]
     assert np.linalg.norm(force) == pytest.approx(carried, rel=0.05)
     assert env.observation_space.contains(obs)
+
+
+@pytest.mark.parametrize("task", ["insertion", "routing", "seating"])
+def test_state_tcp_quaternion_does_not_jump_as_the_wrist_turns(task):
+    """q and -q are one rotation, and MuJoCo's mat2Quat picks the sign by the largest component:
+    for the pointing-down tool it flips where |x| = |y|, 90 deg of wrist turn from home.  The
+    state's TCP quaternion must stay the TCP's rotation and move smoothly through there."""
+    env = wirecraft.make(task)
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    model, data, robot = unwrapped.model, unwrapped.data, unwrapped.robot
+    wrist = model.joint(robot.arm_joint_names[-1]).qposadr[0]
+    quats = []
+    for angle in data.qpos[wrist] + np.linspace(-2.0, 2.0, 201):
+        data.qpos[wrist] = angle
+        mujoco.mj_forward(model, data)
+        quat = unwrapped.task.privileged_state(model, data)[17:21]
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, quat)
+        assert np.allclose(rot.reshape(3, 3), robot.tcp_pose_base(model, data)[1], atol=1e-9)
+        quats.append(quat)
+    # 0.02 rad of wrist turn per sample moves the unit quaternion by 0.01; a sign flip by ~2
+    assert np.linalg.norm(np.diff(quats, axis=0), axis=1).max() < 0.02
+    env.close()

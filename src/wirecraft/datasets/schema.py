@@ -18,8 +18,9 @@ LeRobot v3 features (``features_for``); every feature is documented in docs/data
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
+
+from wirecraft.assets.robots.kinematics import quats_near
 
 SCHEMA_VERSION = 1
 SOURCES = ("scripted", "rl", "teleop", "real")
@@ -125,16 +126,9 @@ def features_for(
 
 def quaternion(rot: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """(4,) unit quaternion (w, x, y, z) of rotation matrix ``rot``, with the sign that puts it
-    in the hemisphere of ``reference``'s quaternion.
-
-    q and -q are the same rotation; a sign fixed by the reference (the robot's home TCP
-    orientation) keeps the feature continuous over an episode except for rotations ~180 deg
-    away from home, whereas ``w >= 0`` would flip it right at the pointing-down home (w = 0)."""
-    q = np.empty(4)
-    mujoco.mju_mat2Quat(q, np.asarray(rot, dtype=float).reshape(9))
-    ref = np.empty(4)
-    mujoco.mju_mat2Quat(ref, np.asarray(reference, dtype=float).reshape(9))
-    return -q if float(q @ ref) < 0.0 else q
+    in the hemisphere of ``reference``'s quaternion (``kinematics.quats_near``: w >= 0 would
+    flip the sign right at the pointing-down home, where w = 0)."""
+    return quats_near(np.asarray(rot, dtype=float)[None], reference)[0]
 
 
 def cartesian_state(robot, model, data) -> np.ndarray:

@@ -36,7 +36,9 @@ Privileged state (42-d for a 6-joint arm; positions and orientations in the robo
     arm joint positions (dof), gripper opening (1), arm joint velocities (dof), gripper opening
     rate (1), TCP position (3) and quaternion (4), left/right pad touching the plug (2), plug
     tip to seated target (3), plug position (3) and quaternion (4), port entry (3), seated
-    target (3), insertion gate, axial and lateral seating errors (3).
+    target (3), insertion gate, axial and lateral seating errors (3).  Quaternion signs are
+    fixed (``quats_near``): the TCP's by the robot's home orientation, the plug's by the socket
+    frame, so that neither jumps between q and -q along an episode.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ import numpy as np
 from wirecraft import physics
 from wirecraft.assets.connectors import CONNECTORS, add_port, add_retention, make_connector
 from wirecraft.assets.fixtures import PortStandConfig
-from wirecraft.assets.robots.kinematics import cross3, mats_to_quats
+from wirecraft.assets.robots.kinematics import cross3, quats_near
 from wirecraft.assets.shapes import add_to_body, quat_about
 from wirecraft.control import commanded_gap
 from wirecraft.sensors import body_geom_ids, contact_normal_force
@@ -353,6 +355,7 @@ class InsertionTask(BatchedTask):
         tcp_rot = self.rot_to_base_batch(frame, frame.rot("site_xmat", self.tcp_site))
         plug_rot = self.rot_to_base_batch(frame, frame.rot("xmat", self.assembly.plug_id))
         base_rot = frame.rot("site_xmat", self.base_site)
+        port_rot = self.rot_to_base_batch(frame, frame.rot("xmat", self.port_id))
         err = self.seating_errors_batch(frame)
         return np.concatenate(
             [
@@ -361,11 +364,12 @@ class InsertionTask(BatchedTask):
                 frame.qvel[:, index.arm_dof],
                 np.sum(frame.qvel[:, index.finger_dof], axis=1, keepdims=True),
                 self.to_base_batch(frame, frame.site_xpos[:, self.tcp_site]),
-                mats_to_quats(tcp_rot),
+                quats_near(tcp_rot, self.robot.home_tcp_rot),
                 self.pads_touching(frame).astype(float),
                 ((seated - tip)[:, None, :] @ base_rot)[:, 0, :],
                 self.to_base_batch(frame, frame.xpos[:, self.assembly.plug_id]),
-                mats_to_quats(plug_rot),
+                # the plug's sign follows the socket frame, which a seated plug's frame matches
+                quats_near(plug_rot, port_rot),
                 self.to_base_batch(frame, entry),
                 self.to_base_batch(frame, seated),
                 self._gate(err)[:, None].astype(float),

@@ -26,7 +26,8 @@ Privileged state (80-d for a 6-joint arm; positions in the robot base frame)
     proprioception (2 dof + 2), TCP position (3) and quaternion (4), left/right pad touching the
     wire (2); for 3 clip places: present flag, slot centre (3), cos and sin of the slot's yaw
     in the base frame (2), wire seated in it (1) (7 each, zeros where no clip); 10 points along
-    the wire (30); clamp position (3); plug position (3).
+    the wire (30); clamp position (3); plug position (3).  The TCP quaternion's sign is fixed by
+    the robot's home orientation (``quats_near``): it does not jump between q and -q.
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ import numpy as np
 
 from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ClipConfig, PlacedClip, add_clip
-from wirecraft.sensors import body_geom_ids, mat_to_quat
+from wirecraft.assets.robots.kinematics import quats_near
+from wirecraft.sensors import body_geom_ids
 from wirecraft.tasks.assembly import WireAssembly, resample
 from wirecraft.tasks.base import EPISODE_SECONDS, TASKS, Task, shaped
 
@@ -225,7 +227,7 @@ class RoutingTask(Task):
             [
                 robot.proprioception(model, data),
                 tcp,
-                mat_to_quat(tcp_rot),
+                quats_near(tcp_rot[None], robot.home_tcp_rot)[0],
                 np.array(self.pad_contacts(model, data, self.assembly.wire_contacts), float),
                 clips.ravel(),
                 self.to_base(data, samples).ravel(),

@@ -33,6 +33,8 @@ Privileged state (82-d for a 6-joint arm; positions in the robot base frame)
     proprioception (2 dof + 2), TCP position (3) and quaternion (4), left/right pad touching the
     plug (2), plug position (3) and quaternion (4), clamp position (3), 10 points along the wire
     (30), the channel's 6 joint points at floor height (18), fraction of the wire inside (1).
+    Quaternion signs are fixed (``quats_near``): the TCP's by the robot's home orientation, the
+    plug's by the channel's heading, so that neither jumps between q and -q along an episode.
 """
 
 from __future__ import annotations
@@ -45,7 +47,8 @@ from wirecraft import validation
 from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ChannelConfig, add_segmented_channel
 from wirecraft.assets.fixtures.channels import MAX_BEND, NUM_SEGMENTS
-from wirecraft.sensors import body_geom_ids, mat_to_quat
+from wirecraft.assets.robots.kinematics import quats_near, rot_z
+from wirecraft.sensors import body_geom_ids
 from wirecraft.tasks.assembly import WireAssembly
 from wirecraft.tasks.base import TASKS, Task, shaped
 
@@ -188,10 +191,14 @@ class SeatingTask(Task):
             [
                 robot.proprioception(model, data),
                 tcp,
-                mat_to_quat(tcp_rot),
+                quats_near(tcp_rot[None], robot.home_tcp_rot)[0],
                 np.array(self.pad_contacts(model, data, self.assembly.plug_contacts), float),
                 self.to_base(data, plug_pos),
-                mat_to_quat(self.rot_to_base(data, plug_rot)),
+                # the plug lies along the channel: its heading fixes the quaternion's sign
+                quats_near(
+                    self.rot_to_base(data, plug_rot)[None],
+                    self.rot_to_base(data, rot_z(CHANNEL_YAW)),
+                )[0],
                 self.to_base(data, data.xpos[model.body(self.assembly.clamp).id]),
                 self.to_base(data, samples).ravel(),
                 self.to_base(data, joints).ravel(),

@@ -168,6 +168,22 @@ def mats_to_quats(mats: np.ndarray) -> np.ndarray:
     return quats
 
 
+def quats_near(mats: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions (w, x, y, z) of (N, 3, 3) rotations, each with the sign that puts
+    it in the hemisphere of ``reference``'s quaternion (one (3, 3) rotation, or (N, 3, 3): one
+    per row).
+
+    q and -q are the same rotation, and ``mju_mat2Quat`` picks the sign by whichever component
+    is largest: for a tool pointing down (w ~ 0) it flips between q and -q as the tool turns
+    about the vertical, a jump in an observation whose rotation did not change.  A sign fixed by
+    a reference near the working orientations (the robot's home TCP orientation) keeps the
+    feature continuous except ~180 deg away from the reference."""
+    quats = mats_to_quats(mats)
+    refs = mats_to_quats(np.broadcast_to(reference, np.shape(mats)))
+    flip = np.sum(quats * refs, axis=1) < 0.0
+    return np.where(flip[:, None], -quats, quats)
+
+
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross products over the last axis (size 3) with broadcasting: ``numpy.cross``'s
     arithmetic without its axis handling, which costs more than the products for small
