@@ -19,9 +19,11 @@ from gymnasium.utils.env_checker import check_env
 import wirecraft
 from wirecraft.assets.connectors import CONNECTORS
 from wirecraft.assets.robots import ROBOTS
+from wirecraft.assets.robots.kinematics import rot_z
 from wirecraft.assets.wires import WIRE_MODELS
 from wirecraft.control import CONTROLLERS
 from wirecraft.tasks import TASKS
+from wirecraft.tasks.seating import CHANNEL_YAW
 
 TASK_NAMES = TASKS.names()
 WIRE_NAMES = WIRE_MODELS.names()
@@ -604,5 +606,36 @@ def test_state_tcp_quaternion_does_not_jump_as_the_wrist_turns(task):
         assert np.allclose(rot.reshape(3, 3), robot.tcp_pose_base(model, data)[1], atol=1e-9)
         quats.append(quat)
     # 0.02 rad of wrist turn per sample moves the unit quaternion by 0.01; a sign flip by ~2
+    assert np.linalg.norm(np.diff(quats, axis=0), axis=1).max() < 0.02
+    env.close()
+
+
+@pytest.mark.parametrize("task", ["insertion", "seating"])
+def test_state_plug_quaternion_does_not_jump_as_the_plug_turns(task):
+    """The plug's quaternion keeps its sign over +/-150 deg of yaw about its reference (the
+    socket frame for insertion, the channel's heading for seating); mat2Quat alone flips it
+    where the largest component changes, within that range."""
+    env = wirecraft.make(task)
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    model, data, task_ = unwrapped.model, unwrapped.data, unwrapped.task
+    plug = task_.assembly.plug_id
+    adr = model.jnt_qposadr[model.body_jntadr[plug]]
+    if task == "insertion":
+        reference, quat_slice = data.xmat[task_.port_id].reshape(3, 3).copy(), slice(29, 33)
+    else:
+        reference, quat_slice = rot_z(CHANNEL_YAW), slice(26, 30)
+    base_rot = data.site_xmat[model.site(unwrapped.robot.base_site).id].reshape(3, 3).copy()
+    quats = []
+    for yaw in np.radians(np.linspace(-150.0, 150.0, 301)):
+        world = rot_z(yaw) @ reference
+        mujoco.mju_mat2Quat(data.qpos[adr + 3 : adr + 7], world.ravel())
+        mujoco.mj_forward(model, data)
+        quat = task_.privileged_state(model, data)[quat_slice]
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, quat)
+        assert np.allclose(rot.reshape(3, 3), base_rot.T @ world, atol=1e-9)
+        quats.append(quat)
+    # 1 deg of yaw per sample moves the unit quaternion by ~0.009; a sign flip by ~2
     assert np.linalg.norm(np.diff(quats, axis=0), axis=1).max() < 0.02
     env.close()

@@ -120,9 +120,3 @@ def quat_to_mat(quat: np.ndarray) -> np.ndarray:
     mat = np.zeros(9)
     mujoco.mju_quat2Mat(mat, np.asarray(quat, dtype=float))
     return mat.reshape(3, 3)
-
-
-def mat_to_quat(mat: np.ndarray) -> np.ndarray:
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.asarray(mat, dtype=float).reshape(9))
-    return quat
