@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 import wirecraft
+from wirecraft.assets.robots.kinematics import quat_near
 from wirecraft.cli import main
 from wirecraft.datasets import schema
 from wirecraft.datasets.collect import (
@@ -152,7 +153,7 @@ def test_quaternion_is_unit_and_near_the_reference_hemisphere():
     home = np.diag([-1.0, 1.0, -1.0])  # TCP pointing down: w = 0, where a w >= 0 rule flips
     for rotvec in np.random.default_rng(0).normal(scale=0.3, size=(20, 3)):
         rot = Rotation.from_rotvec(rotvec).as_matrix() @ home
-        q = schema.quaternion(rot, home)
+        q = quat_near(rot, home)
         x, y, z, w = Rotation.from_matrix(rot).as_quat()
         assert np.allclose(np.abs(q @ [w, x, y, z]), 1.0)  # same rotation, (w, x, y, z) order
         assert q[2] > 0.5  # the home quaternion is (0, 0, 1, 0)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wirecraft.assets.robots.kinematics import quats_near
+from wirecraft.assets.robots.kinematics import quat_near
 
 SCHEMA_VERSION = 1
 SOURCES = ("scripted", "rl", "teleop", "real")
@@ -124,14 +124,9 @@ def features_for(
     return features
 
 
-def quaternion(rot: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """(4,) unit quaternion (w, x, y, z) of rotation matrix ``rot``, with the sign that puts it
-    in the hemisphere of ``reference``'s quaternion (``kinematics.quats_near``: w >= 0 would
-    flip the sign right at the pointing-down home, where w = 0)."""
-    return quats_near(np.asarray(rot, dtype=float)[None], reference)[0]
-
-
 def cartesian_state(robot, model, data) -> np.ndarray:
-    """(7,) TCP position (m) and quaternion (w, x, y, z) in the robot base frame."""
+    """(7,) TCP position (m) and quaternion (w, x, y, z) in the robot base frame; of q and -q,
+    the one nearer the home orientation's (``kinematics.quats_near``: w >= 0 would flip the
+    sign right at the pointing-down home, where w = 0)."""
     pos, rot = robot.tcp_pose_base(model, data)
-    return np.concatenate([pos, quaternion(rot, robot.home_tcp_rot)])
+    return np.concatenate([pos, quat_near(rot, robot.home_tcp_rot)])

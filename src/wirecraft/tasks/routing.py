@@ -39,7 +39,7 @@ import numpy as np
 
 from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ClipConfig, PlacedClip, add_clip
-from wirecraft.assets.robots.kinematics import quats_near
+from wirecraft.assets.robots.kinematics import quat_near
 from wirecraft.sensors import body_geom_ids
 from wirecraft.tasks.assembly import WireAssembly, resample
 from wirecraft.tasks.base import EPISODE_SECONDS, TASKS, Task, shaped
@@ -227,7 +227,7 @@ class RoutingTask(Task):
             [
                 robot.proprioception(model, data),
                 tcp,
-                quats_near(tcp_rot[None], robot.home_tcp_rot)[0],
+                quat_near(tcp_rot, robot.home_tcp_rot),
                 np.array(self.pad_contacts(model, data, self.assembly.wire_contacts), float),
                 clips.ravel(),
                 self.to_base(data, samples).ravel(),

@@ -47,7 +47,7 @@ from wirecraft import validation
 from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ChannelConfig, add_segmented_channel
 from wirecraft.assets.fixtures.channels import MAX_BEND, NUM_SEGMENTS
-from wirecraft.assets.robots.kinematics import quats_near, rot_z
+from wirecraft.assets.robots.kinematics import quat_near, rot_z
 from wirecraft.sensors import body_geom_ids
 from wirecraft.tasks.assembly import WireAssembly
 from wirecraft.tasks.base import TASKS, Task, shaped
@@ -191,14 +191,13 @@ class SeatingTask(Task):
             [
                 robot.proprioception(model, data),
                 tcp,
-                quats_near(tcp_rot[None], robot.home_tcp_rot)[0],
+                quat_near(tcp_rot, robot.home_tcp_rot),
                 np.array(self.pad_contacts(model, data, self.assembly.plug_contacts), float),
                 self.to_base(data, plug_pos),
                 # the plug lies along the channel: its heading fixes the quaternion's sign
-                quats_near(
-                    self.rot_to_base(data, plug_rot)[None],
-                    self.rot_to_base(data, rot_z(CHANNEL_YAW)),
-                )[0],
+                quat_near(
+                    self.rot_to_base(data, plug_rot), self.rot_to_base(data, rot_z(CHANNEL_YAW))
+                ),
                 self.to_base(data, data.xpos[model.body(self.assembly.clamp).id]),
                 self.to_base(data, samples).ravel(),
                 self.to_base(data, joints).ravel(),

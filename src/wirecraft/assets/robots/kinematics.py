@@ -179,9 +179,15 @@ def quats_near(mats: np.ndarray, reference: np.ndarray) -> np.ndarray:
     a reference near the working orientations (the robot's home TCP orientation) keeps the
     feature continuous except ~180 deg away from the reference."""
     quats = mats_to_quats(mats)
-    refs = mats_to_quats(np.broadcast_to(reference, np.shape(mats)))
-    flip = np.sum(quats * refs, axis=1) < 0.0
+    reference = np.asarray(reference, dtype=float)
+    refs = mat_to_quat(reference) if reference.ndim == 2 else mats_to_quats(reference)
+    flip = np.sum(quats * refs, axis=-1) < 0.0
     return np.where(flip[:, None], -quats, quats)
+
+
+def quat_near(rot: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(4,) ``quats_near`` of one (3, 3) rotation."""
+    return quats_near(np.asarray(rot, dtype=float)[None], reference)[0]
 
 
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
