@@ -391,6 +391,49 @@ def test_ppo_trains_saves_loads_and_resumes(tmp_path):
     with pytest.raises(ValueError, match="control"):
         load_policy(run_dir, wirecraft.make("insertion", control="joint"))
 
+    # the run records the state revision it was trained on; another revision does not load
+    from wirecraft.tasks import STATE_REVISION
+
+    assert run["state_revision"] == STATE_REVISION
+    assert run["versions"]["wirecraft"] == wirecraft.__version__
+    for old in (STATE_REVISION - 1, None):  # None: a run from before revisions were recorded
+        if old is None:
+            del run["state_revision"]
+        else:
+            run["state_revision"] = old
+        (run_dir / RUN_FILE).write_text(json.dumps(run))
+        with pytest.raises(ValueError, match=f"trained on state revision {old or 1};"):
+            load_policy(run_dir)
+        with pytest.raises(ValueError, match="state revision"):
+            train("ppo", "insertion", None, run_dir, steps=144, resume=True, progress=False)
+
+
+def test_source_commit_names_the_checkout_and_marks_uncommitted_changes(tmp_path):
+    import subprocess
+
+    from wirecraft.rl.train import _source_commit
+
+    assert _source_commit(tmp_path) is None  # not a git checkout
+
+    def git(*args):
+        return subprocess.run(
+            ["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t", *args],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout.strip()
+
+    git("init", "-q")
+    (tmp_path / "a.py").write_text("x = 1\n")
+    git("add", "a.py")
+    git("commit", "-q", "-m", "first")
+    head = git("rev-parse", "HEAD")
+    assert _source_commit(tmp_path) == head
+    (tmp_path / "notes.txt").write_text("untracked files do not count")
+    assert _source_commit(tmp_path) == head
+    (tmp_path / "a.py").write_text("x = 2\n")
+    assert _source_commit(tmp_path) == head + "+dirty"
+
 
 @pytest.mark.slow
 def test_sacfd_trains_with_demonstrations_saves_loads_and_resumes(tmp_path):

@@ -60,6 +60,24 @@ def read_run(run_dir: str | os.PathLike) -> dict:
     return run
 
 
+def check_state_revision(run_dir: Path, run: dict) -> None:
+    """A ValueError unless the run was trained on this code's state revision (runs written
+    before revisions were recorded count as revision 1)."""
+    from wirecraft.tasks import STATE_REVISION
+
+    revision = run.get("state_revision", 1)
+    if revision == STATE_REVISION:
+        return
+    commit = run.get("versions", {}).get("wirecraft_commit")
+    where = f" (commit {commit})" if commit else ""
+    raise ValueError(
+        f"{run_dir} was trained on state revision {revision}; this WireCraft's state is "
+        f"revision {STATE_REVISION} (wirecraft.tasks.STATE_REVISION says what changed), so its "
+        f"policy would read inputs it never saw. Use the WireCraft it was trained with{where}, "
+        "or train it again."
+    )
+
+
 def checkpoint_path(run_dir: Path, run: dict, path: str | os.PathLike | None = None) -> Path:
     """``path`` when it is a checkpoint file, else the run's latest checkpoint."""
     if path is not None and Path(path).is_file():

@@ -22,6 +22,7 @@ from wirecraft.rl.common import (
     RUN_FORMAT,
     ProgressTable,
     WallClock,
+    check_state_revision,
     checkpoint_path,
     env_control,
     find_run_dir,
@@ -77,8 +78,37 @@ def _normalizer_note(algorithm: str, cfg) -> str:
 def _versions(algorithm: str) -> dict[str, str]:
     from importlib.metadata import version
 
+    import wirecraft
+
     names = ["torch", "skrl"] if algorithm == "sacfd" else ["torch", "rsl-rl-lib"]
-    return {name: version(name) for name in names}
+    versions = {name: version(name) for name in names}
+    versions["wirecraft"] = wirecraft.__version__
+    commit = _source_commit(Path(wirecraft.__file__).parent)
+    if commit:
+        versions["wirecraft_commit"] = commit
+    return versions
+
+
+def _source_commit(package_dir: Path) -> str | None:
+    """The git commit of a source checkout of WireCraft (``+dirty`` with uncommitted changes
+    to tracked files); None for an installed wheel or without git."""
+    import subprocess
+
+    def git(*args: str) -> str:
+        return subprocess.run(
+            ["git", "-C", str(package_dir), *args],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout.strip()
+
+    try:
+        commit = git("rev-parse", "HEAD")
+        dirty = git("status", "--porcelain", "--untracked-files=no")
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return commit + ("+dirty" if dirty else "")
 
 
 class Run:
@@ -120,7 +150,7 @@ def _check_expert_control(algorithm: str, task: str, env_kwargs: dict, cfg) -> N
 
 
 def _new_run(algorithm: str, task: str, env_kwargs: dict, cfg, run_dir: Path) -> Run:
-    from wirecraft.tasks import TASKS
+    from wirecraft.tasks import STATE_REVISION, TASKS
 
     env_kwargs = dict(env_kwargs)
     env_kwargs.setdefault("control", TASKS.get(task).default_control)
@@ -146,6 +176,7 @@ def _new_run(algorithm: str, task: str, env_kwargs: dict, cfg, run_dir: Path) ->
         "wall_time_s": 0.0,
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "versions": _versions(algorithm),
+        "state_revision": STATE_REVISION,
     }
     run = Run(run_dir, data)
     run.save()
@@ -180,6 +211,7 @@ def train(
         data = read_run(run_dir)
         if data["algorithm"] != algorithm:
             raise ValueError(f"{run_dir} holds a {data['algorithm']} run, not {algorithm}")
+        check_state_revision(run_dir, data)
         cfg = config_from_dict(algorithm, data["config"])
         changed = {k: v for k, v in overrides.items() if getattr(cfg, k, object()) != v}
         if changed:
@@ -454,6 +486,7 @@ def load_policy(path: str | os.PathLike, env=None):
     run_dir = find_run_dir(path)
     run = read_run(run_dir)
     checkpoint = checkpoint_path(run_dir, run, path if Path(path).is_file() else None)
+    check_state_revision(run_dir, run)
     if env is not None:
         control = env_control(env)
         if control != run["control"]:

@@ -54,6 +54,15 @@ from wirecraft.tasks.frame import Frame
 # Episode length unless the task or the user says otherwise.
 EPISODE_SECONDS = 8.0
 
+# The meaning of every task's ``state`` vector (layout, frames, units, sign conventions).  Bump
+# it with any such change: RL run directories record it, and loading a policy trained on
+# another revision fails instead of feeding it inputs it never saw.
+#   1: the first layout.
+#   2: the TCP and plug quaternions keep the hemisphere of a fixed reference
+#      (``kinematics.quats_near``) instead of MuJoCo's largest-component sign, which flipped
+#      q -> -q as the wrist turned.
+STATE_REVISION = 2
+
 TASKS: Registry[type[Task]] = Registry("task")
 
 
