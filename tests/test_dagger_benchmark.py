@@ -1,0 +1,69 @@
+"""benchmarks/dagger_insertion.py: its labelling expert (diversity off, unlimited retries, goals
+re-derived from the current state) still solves insertion on its own, and a state that carries
+stale expert memory starts the expert over."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+
+import wirecraft
+from wirecraft.experts.insertion import InsertionExpert
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "dagger_insertion.py"
+
+
+def load_script():
+    spec = importlib.util.spec_from_file_location("dagger_insertion", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def make_venv(num_envs):
+    return wirecraft.make_vec(
+        "insertion", num_envs, threads=1, connector="ethernet", control=InsertionExpert.CONTROL
+    )
+
+
+def test_the_labelling_expert_inserts_alone_and_labels_every_step():
+    script = load_script()
+    venv = make_venv(2)
+    expert = script.labelling_expert(venv)
+    states, labels, phases, stats = script.run_wave(
+        venv, expert, None, 1.0, seed=3, rng=np.random.default_rng(0)
+    )
+    venv.close()
+    assert stats["reach"] == 1.0 and stats["insert"] == 1.0  # the task's own success flags
+    steps = 480
+    assert states.shape == (2 * steps, 42) and labels.shape == (2 * steps, 7)
+    assert np.all(np.abs(labels) <= 1.0)
+    names = {expert.fsm.phases[k].name for k in phases}
+    assert {"approach", "descend", "close", "lift", "pre_insert", "insert"} <= names
+
+
+def test_stale_expert_memory_is_rederived_from_the_state():
+    script = load_script()
+    venv = make_venv(3)
+    venv.reset(seed=5)
+    expert = script.labelling_expert(venv)
+    expert.reset(seed=5)
+    expert.act(None)  # reads every environment once; all start in approach, plug on the table
+    fsm = expert.fsm
+    # 0: "carrying" with empty pads; 1: "done" though nothing is seated; 2: lifting from
+    # a point 5 cm to the side of where the TCP now is.
+    fsm.goto("pre_insert", np.array([True, False, False]))
+    fsm.goto("done", np.array([False, True, False]))
+    fsm.goto("lift", np.array([False, False, True]))
+    view = expert.read_state(2)
+    side = np.cross(view.up, [1.0, 0.0, 0.0])
+    fsm.snapshots["lift_from"][2] = view.tcp_pos + 0.05 * side / np.linalg.norm(side)
+    script.refresh_expert(expert, seated=np.zeros(3, bool))
+    assert [fsm.phases[k].name for k in fsm.phase] == ["approach", "approach", "lift"]
+    offset = fsm.snapshots["lift_from"][2] - view.tcp_pos
+    np.testing.assert_allclose(offset - np.dot(offset, view.up) * view.up, 0.0, atol=1e-12)
+    # a seated plug keeps a finished expert finished
+    fsm.goto("done", np.array([False, True, False]))
+    script.refresh_expert(expert, seated=np.array([False, True, False]))
+    assert fsm.phases[fsm.phase[1]].name == "done"
+    venv.close()
