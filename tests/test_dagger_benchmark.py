@@ -2,22 +2,10 @@
 re-derived from the current state) still solves insertion on its own, and a state that carries
 stale expert memory starts the expert over."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 
 import wirecraft
 from wirecraft.experts.insertion import InsertionExpert
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "dagger_insertion.py"
-
-
-def load_script():
-    spec = importlib.util.spec_from_file_location("dagger_insertion", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def make_venv(num_envs):
@@ -26,8 +14,8 @@ def make_venv(num_envs):
     )
 
 
-def test_the_labelling_expert_inserts_alone_and_labels_every_step():
-    script = load_script()
+def test_the_labelling_expert_inserts_alone_and_labels_every_step(load_benchmark):
+    script = load_benchmark("dagger_insertion")
     venv = make_venv(2)
     expert = script.labelling_expert(venv)
     states, labels, phases, stats = script.run_wave(
@@ -42,8 +30,8 @@ def test_the_labelling_expert_inserts_alone_and_labels_every_step():
     assert {"approach", "descend", "close", "lift", "pre_insert", "insert"} <= names
 
 
-def test_stale_expert_memory_is_rederived_from_the_state():
-    script = load_script()
+def test_stale_expert_memory_is_rederived_from_the_state(load_benchmark):
+    script = load_benchmark("dagger_insertion")
     venv = make_venv(3)
     venv.reset(seed=5)
     expert = script.labelling_expert(venv)

@@ -1,22 +1,11 @@
 """benchmarks/policy_behaviour.py on the scripted expert, whose grasp is known: it closes
 across the tail, lifts the plug off the table and inserts it."""
 
-import importlib.util
 from argparse import Namespace
-from pathlib import Path
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "policy_behaviour.py"
 
 
-def load_script():
-    spec = importlib.util.spec_from_file_location("policy_behaviour", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_the_expert_grasps_across_the_tail_and_carries_the_plug():
-    script = load_script()
+def test_the_expert_grasps_across_the_tail_and_carries_the_plug(load_benchmark):
+    script = load_benchmark("policy_behaviour")
     args = Namespace(
         policy="scripted",
         connector="ethernet",
