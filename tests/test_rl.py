@@ -424,15 +424,20 @@ def test_source_commit_names_the_checkout_and_marks_uncommitted_changes(tmp_path
         ).stdout.strip()
 
     git("init", "-q")
-    (tmp_path / "a.py").write_text("x = 1\n")
-    git("add", "a.py")
+    (tmp_path / "__init__.py").write_text("x = 1\n")
+    git("add", "__init__.py")
     git("commit", "-q", "-m", "first")
     head = git("rev-parse", "HEAD")
     assert _source_commit(tmp_path) == head
     (tmp_path / "notes.txt").write_text("untracked files do not count")
     assert _source_commit(tmp_path) == head
-    (tmp_path / "a.py").write_text("x = 2\n")
+    (tmp_path / "__init__.py").write_text("x = 2\n")
     assert _source_commit(tmp_path) == head + "+dirty"
+    # a package installed (untracked) inside someone else's repository is not their commit
+    installed = tmp_path / "venv" / "site-packages" / "wirecraft"
+    installed.mkdir(parents=True)
+    (installed / "__init__.py").write_text("")
+    assert _source_commit(installed) is None
 
 
 @pytest.mark.slow

@@ -91,7 +91,8 @@ def _versions(algorithm: str) -> dict[str, str]:
 
 def _source_commit(package_dir: Path) -> str | None:
     """The git commit of a source checkout of WireCraft (``+dirty`` with uncommitted changes
-    to tracked files); None for an installed wheel or without git."""
+    to tracked files); None for an installed wheel (also one inside someone's repository,
+    where the package's files are not tracked) or without git."""
     import subprocess
 
     def git(*args: str) -> str:
@@ -104,6 +105,7 @@ def _source_commit(package_dir: Path) -> str | None:
         ).stdout.strip()
 
     try:
+        git("ls-files", "--error-unmatch", "__init__.py")
         commit = git("rev-parse", "HEAD")
         dirty = git("status", "--porcelain", "--untracked-files=no")
     except (OSError, subprocess.SubprocessError):
