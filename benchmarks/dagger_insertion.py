@@ -180,11 +180,14 @@ def main() -> None:
     )
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
-    hidden = tuple(int(h) for h in args.hidden.split(","))
+    try:
+        hidden = tuple(int(h) for h in args.hidden.split(","))
+    except ValueError:
+        parser.error(f"--hidden must be comma-separated widths, got {args.hidden!r}")
     if args.iterations < 1 or args.num_envs < 1 or args.eval_envs < 1 or args.epochs < 1:
         parser.error("--iterations, --num-envs, --eval-envs and --epochs must be >= 1")
-    if not args.near_weight > 0:
-        parser.error(f"--near-weight must be > 0, got {args.near_weight}")
+    if not 0 < args.near_weight < float("inf"):
+        parser.error(f"--near-weight must be a finite number > 0, got {args.near_weight}")
     if not hidden or min(hidden) < 1:
         parser.error(f"--hidden must be positive widths, got {args.hidden!r}")
     args.out.mkdir(parents=True, exist_ok=True)
