@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -651,3 +652,21 @@ def test_existing_folder_needs_resume_and_the_same_settings(reference, tmp_path,
     assert main(other_seed) == 2
     assert "refusing to mix" in capsys.readouterr().err
     assert load(root).num_episodes == 2  # untouched
+
+    # a dataset of another state revision (or one from before it was recorded) is not continued
+    from wirecraft.datasets.collect import SETTINGS_FILE
+    from wirecraft.tasks import STATE_REVISION
+
+    stored = json.loads((root / SETTINGS_FILE).read_text())
+    assert stored["state_revision"] == STATE_REVISION
+    old = tmp_path / "old"
+    shutil.copytree(root, old)
+    for revision in (STATE_REVISION - 1, None):
+        if revision is None:
+            del stored["state_revision"]
+        else:
+            stored["state_revision"] = revision
+        (old / SETTINGS_FILE).write_text(json.dumps(stored))
+        assert main([*CLI_ARGS, "--out", str(old), "--resume"]) == 2
+        assert f"collected on state revision {revision or 1};" in capsys.readouterr().err
+    assert load(old).num_episodes == 2

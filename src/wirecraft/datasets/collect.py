@@ -19,7 +19,9 @@
   stops at once (``--resume`` then rolls back to the last commit).  A hard kill loses at most
   the episodes since the last commit (``commit_every``); ``--resume`` regenerates them.
 - The collection settings are stored in ``meta/wirecraft_collect.json``; ``resume`` refuses a
-  dataset collected with different settings (only ``episodes`` and the workers may change).
+  dataset collected with different settings (only ``episodes`` and the workers may change) or
+  on another state revision (``wirecraft.tasks.STATE_REVISION``: what ``observation.state``
+  means).
 """
 
 from __future__ import annotations
@@ -405,6 +407,7 @@ def _check_out(settings: CollectSettings, out: Path, resume: bool) -> dict | Non
     """Refuse an ``out`` that cannot take these settings; the commit record of the dataset to
     continue (None for a new dataset).  Cheap (no lerobot): runs before the workers start."""
     from wirecraft.datasets.writer import COMMIT_FILE, read_commit
+    from wirecraft.tasks import STATE_REVISION
 
     existing = out.exists() and (not out.is_dir() or any(out.iterdir()))
     if existing and not resume:
@@ -419,6 +422,13 @@ def _check_out(settings: CollectSettings, out: Path, resume: bool) -> dict | Non
                 f"{out} is not a dataset written by wirecraft collect (no {SETTINGS_FILE})"
             )
         stored = json.loads(path.read_text())
+        revision = stored.get("state_revision", 1)  # datasets from before it was recorded: 1
+        if revision != STATE_REVISION:
+            raise ValueError(
+                f"{out} was collected on state revision {revision}; this WireCraft's "
+                f"observation.state is revision {STATE_REVISION} (wirecraft.tasks."
+                "STATE_REVISION says what changed): refusing to mix them in one dataset"
+            )
         diff = _differences(stored["settings"], settings.to_dict())
         diff += _differences(stored.get("expert", {}), expert_description(settings.task))
         if diff:
@@ -452,11 +462,13 @@ def _open_writer(
         progress=progress,
     )
     from wirecraft.datasets.writer import write_json_atomic
+    from wirecraft.tasks import STATE_REVISION
 
     write_json_atomic(
         _settings_path(out),
         {
             "schema_version": schema.SCHEMA_VERSION,
+            "state_revision": STATE_REVISION,
             "sources": list(schema.SOURCES),
             "source": "scripted",
             "settings": settings.to_dict(),
