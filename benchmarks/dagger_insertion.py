@@ -190,13 +190,16 @@ def main() -> None:
         parser.error(f"--near-weight must be a finite number > 0, got {args.near_weight}")
     if not hidden or min(hidden) < 1:
         parser.error(f"--hidden must be positive widths, got {args.hidden!r}")
-    args.out.mkdir(parents=True, exist_ok=True)
 
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
     options = {"threads": args.threads, "control": InsertionExpert.CONTROL}
-    venv = wirecraft.make_vec("insertion", args.num_envs, connector=args.connector, **options)
+    try:  # a bad --connector or --threads: an error before anything is written
+        venv = wirecraft.make_vec("insertion", args.num_envs, connector=args.connector, **options)
+    except ValueError as err:
+        parser.error(str(err))
     eval_venv = wirecraft.make_vec("insertion", args.eval_envs, connector=args.connector, **options)
+    args.out.mkdir(parents=True, exist_ok=True)
     expert = labelling_expert(venv)
     learner = Learner(hidden)
     states, labels, phases = [], [], []

@@ -407,7 +407,7 @@ def _check_out(settings: CollectSettings, out: Path, resume: bool) -> dict | Non
     """Refuse an ``out`` that cannot take these settings; the commit record of the dataset to
     continue (None for a new dataset).  Cheap (no lerobot): runs before the workers start."""
     from wirecraft.datasets.writer import COMMIT_FILE, read_commit
-    from wirecraft.tasks import STATE_REVISION
+    from wirecraft.tasks import check_state_revision
 
     existing = out.exists() and (not out.is_dir() or any(out.iterdir()))
     if existing and not resume:
@@ -422,13 +422,7 @@ def _check_out(settings: CollectSettings, out: Path, resume: bool) -> dict | Non
                 f"{out} is not a dataset written by wirecraft collect (no {SETTINGS_FILE})"
             )
         stored = json.loads(path.read_text())
-        revision = stored.get("state_revision", 1)  # datasets from before it was recorded: 1
-        if revision != STATE_REVISION:
-            raise ValueError(
-                f"{out} was collected on state revision {revision}; this WireCraft's "
-                f"observation.state is revision {STATE_REVISION} (wirecraft.tasks."
-                "STATE_REVISION says what changed): refusing to mix them in one dataset"
-            )
+        check_state_revision(stored, f"{out} was collected", "refusing to mix them in one dataset")
         diff = _differences(stored["settings"], settings.to_dict())
         diff += _differences(stored.get("expert", {}), expert_description(settings.task))
         if diff:

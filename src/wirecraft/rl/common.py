@@ -60,21 +60,17 @@ def read_run(run_dir: str | os.PathLike) -> dict:
     return run
 
 
-def check_state_revision(run_dir: Path, run: dict) -> None:
-    """A ValueError unless the run was trained on this code's state revision (runs written
-    before revisions were recorded count as revision 1)."""
-    from wirecraft.tasks import STATE_REVISION
+def check_run_state_revision(run_dir: Path, run: dict) -> None:
+    """``tasks.check_state_revision`` of a run, naming the commit it was trained on."""
+    from wirecraft.tasks import check_state_revision
 
-    revision = run.get("state_revision", 1)
-    if revision == STATE_REVISION:
-        return
     commit = run.get("versions", {}).get("wirecraft_commit")
     where = f" (commit {commit})" if commit else ""
-    raise ValueError(
-        f"{run_dir} was trained on state revision {revision}; this WireCraft's state is "
-        f"revision {STATE_REVISION} (wirecraft.tasks.STATE_REVISION says what changed), so its "
-        f"policy would read inputs it never saw. Use the WireCraft it was trained with{where}, "
-        "or train it again."
+    check_state_revision(
+        run,
+        f"{run_dir} was trained",
+        "its policy would read inputs it never saw. Use the WireCraft it was trained "
+        f"with{where}, or train it again.",
     )
 
 

@@ -22,7 +22,7 @@ from wirecraft.rl.common import (
     RUN_FORMAT,
     ProgressTable,
     WallClock,
-    check_state_revision,
+    check_run_state_revision,
     checkpoint_path,
     env_control,
     find_run_dir,
@@ -213,7 +213,7 @@ def train(
         data = read_run(run_dir)
         if data["algorithm"] != algorithm:
             raise ValueError(f"{run_dir} holds a {data['algorithm']} run, not {algorithm}")
-        check_state_revision(run_dir, data)
+        check_run_state_revision(run_dir, data)
         cfg = config_from_dict(algorithm, data["config"])
         changed = {k: v for k, v in overrides.items() if getattr(cfg, k, object()) != v}
         if changed:
@@ -488,7 +488,7 @@ def load_policy(path: str | os.PathLike, env=None):
     run_dir = find_run_dir(path)
     run = read_run(run_dir)
     checkpoint = checkpoint_path(run_dir, run, path if Path(path).is_file() else None)
-    check_state_revision(run_dir, run)
+    check_run_state_revision(run_dir, run)
     if env is not None:
         control = env_control(env)
         if control != run["control"]:

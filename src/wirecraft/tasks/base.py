@@ -63,6 +63,20 @@ EPISODE_SECONDS = 8.0
 #      q -> -q as the wrist turned.
 STATE_REVISION = 2
 
+
+def check_state_revision(record: dict, made: str, consequence: str) -> None:
+    """A ValueError unless ``record`` (an RL run file, a dataset's settings) says it was made
+    on ``STATE_REVISION``; records from before revisions were recorded count as revision 1.
+    ``made``: what was made and how (``"RUN was trained"``); ``consequence``: why that stops
+    the caller, and what to do instead."""
+    revision = record.get("state_revision", 1)
+    if revision != STATE_REVISION:
+        raise ValueError(
+            f"{made} on state revision {revision}; this WireCraft's state is revision "
+            f"{STATE_REVISION} (wirecraft.tasks.STATE_REVISION says what changed): {consequence}"
+        )
+
+
 TASKS: Registry[type[Task]] = Registry("task")
 
 
