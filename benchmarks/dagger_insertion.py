@@ -41,6 +41,7 @@ from tqdm import tqdm
 
 import wirecraft
 from wirecraft.experts.insertion import InsertionExpert, InsertionExpertConfig
+from wirecraft.experts.reactive import ReactiveInsertionExpert
 
 EXPERT_SEED, COLLECT_SEED, EVAL_SEED = 7, 1000, 999
 PADS_ON_PLUG = (21, 22)  # state columns: left and right pad touch the plug (0 / 1)
@@ -125,21 +126,31 @@ def refresh_expert(expert: InsertionExpert, seated: np.ndarray) -> None:
             expert._take_grasp_goal(i)
 
 
+def make_expert(kind: str, venv):
+    """The labelling expert: ``scripted`` (``labelling_expert``) or ``reactive``."""
+    return labelling_expert(venv) if kind == "scripted" else ReactiveInsertionExpert(venv)
+
+
 def run_wave(venv, expert, learner, beta: float, seed: int, rng) -> tuple:
     """One episode in every environment; returns (states, labels, phases, stats). ``learner``
     None: the expert alone; ``expert`` None: the learner alone, no labels."""
     obs, _ = venv.reset(seed=seed)
     n = venv.num_envs
-    if expert is not None:
+    scripted = isinstance(expert, InsertionExpert)
+    if scripted:
         expert.reset(seed=seed)
     states, labels, phases = [], [], []
     reach, insert, seated = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
     pads = np.zeros(n)
     for _ in range(venv.envs[0].max_steps):
-        if expert is not None:
+        if scripted:
             refresh_expert(expert, seated)
-            phases.append(expert.fsm.phase.copy())
+            phases.append(expert.fsm.phase.copy())  # the phase the label is made in
             label = expert.act(obs)
+        elif expert is not None:
+            label = expert.act(obs)
+            phases.append(expert.phase.copy())  # the rule that made the label
+        if expert is not None:
             states.append(obs.copy())
             labels.append(label)
         action = label if learner is None else learner(obs)
@@ -178,6 +189,12 @@ def main() -> None:
         default=1.0,
         help=f"loss weight of labels with the plug tip within {NEAR_SOCKET * 100:.0f} cm of home",
     )
+    parser.add_argument(
+        "--expert",
+        choices=("scripted", "reactive"),
+        default="scripted",
+        help="labeller: the scripted expert (refreshed) or ReactiveInsertionExpert (state alone)",
+    )
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
     try:
@@ -200,7 +217,7 @@ def main() -> None:
         parser.error(str(err))
     eval_venv = wirecraft.make_vec("insertion", args.eval_envs, connector=args.connector, **options)
     args.out.mkdir(parents=True, exist_ok=True)
-    expert = labelling_expert(venv)
+    expert = make_expert(args.expert, venv)
     learner = Learner(hidden)
     states, labels, phases = [], [], []
     start = time.time()

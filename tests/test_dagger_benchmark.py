@@ -1,10 +1,12 @@
-"""benchmarks/dagger_insertion.py: its labelling expert (diversity off, unlimited retries, goals
-re-derived from the current state) still solves insertion on its own, and a state that carries
-stale expert memory starts the expert over."""
+"""benchmarks/dagger_insertion.py: its labelling experts (the scripted one with diversity off,
+unlimited retries and goals re-derived from the current state; the reactive one) solve insertion
+on their own, and a state that carries stale expert memory starts the scripted expert over."""
 
 import numpy as np
+import pytest
 
 import wirecraft
+from wirecraft.experts import reactive
 from wirecraft.experts.insertion import InsertionExpert
 
 
@@ -14,10 +16,11 @@ def make_venv(num_envs):
     )
 
 
-def test_the_labelling_expert_inserts_alone_and_labels_every_step(load_benchmark):
+@pytest.mark.parametrize("kind", ["scripted", "reactive"])
+def test_the_labelling_expert_inserts_alone_and_labels_every_step(load_benchmark, kind):
     script = load_benchmark("dagger_insertion")
     venv = make_venv(2)
-    expert = script.labelling_expert(venv)
+    expert = script.make_expert(kind, venv)
     states, labels, phases, stats = script.run_wave(
         venv, expert, None, 1.0, seed=3, rng=np.random.default_rng(0)
     )
@@ -26,7 +29,10 @@ def test_the_labelling_expert_inserts_alone_and_labels_every_step(load_benchmark
     steps = 480
     assert states.shape == (2 * steps, 42) and labels.shape == (2 * steps, 7)
     assert np.all(np.abs(labels) <= 1.0)
-    names = {expert.fsm.phases[k].name for k in phases}
+    if kind == "scripted":
+        names = {expert.fsm.phases[k].name for k in phases}
+    else:
+        names = {reactive.PHASES[k] for k in phases}
     assert {"approach", "descend", "close", "lift", "pre_insert", "insert"} <= names
 
 
