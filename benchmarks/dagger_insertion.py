@@ -126,9 +126,12 @@ def refresh_expert(expert: InsertionExpert, seated: np.ndarray) -> None:
             expert._take_grasp_goal(i)
 
 
-def make_expert(kind: str, venv):
-    """The labelling expert: ``scripted`` (``labelling_expert``) or ``reactive``."""
-    return labelling_expert(venv) if kind == "scripted" else ReactiveInsertionExpert(venv)
+def make_expert(kind: str, venv, gain: float | None = None):
+    """The labelling expert: ``scripted`` (``labelling_expert``) or ``reactive`` (``gain``:
+    its ``ReactiveInsertionExpert.gain``, None for the default)."""
+    if kind == "scripted":
+        return labelling_expert(venv)
+    return ReactiveInsertionExpert(venv, gain=gain)
 
 
 def run_wave(venv, expert, learner, beta: float, seed: int, rng) -> tuple:
@@ -195,6 +198,12 @@ def main() -> None:
         default="scripted",
         help="labeller: the scripted expert (refreshed) or ReactiveInsertionExpert (state alone)",
     )
+    parser.add_argument(
+        "--expert-gain",
+        type=float,
+        default=None,
+        help="the reactive expert's gain, in (0, 1] (default: its own, 0.5)",
+    )
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
     try:
@@ -205,6 +214,12 @@ def main() -> None:
         parser.error("--iterations, --num-envs, --eval-envs and --epochs must be >= 1")
     if not 0 < args.near_weight < float("inf"):
         parser.error(f"--near-weight must be a finite number > 0, got {args.near_weight}")
+    if args.expert_gain is not None and (
+        args.expert != "reactive" or not 0 < args.expert_gain <= 1
+    ):
+        parser.error(
+            f"--expert-gain needs --expert reactive and a value in (0, 1], got {args.expert_gain}"
+        )
     if not hidden or min(hidden) < 1:
         parser.error(f"--hidden must be positive widths, got {args.hidden!r}")
 
@@ -217,7 +232,7 @@ def main() -> None:
         parser.error(str(err))
     eval_venv = wirecraft.make_vec("insertion", args.eval_envs, connector=args.connector, **options)
     args.out.mkdir(parents=True, exist_ok=True)
-    expert = make_expert(args.expert, venv)
+    expert = make_expert(args.expert, venv, args.expert_gain)
     learner = Learner(hidden)
     states, labels, phases = [], [], []
     start = time.time()

@@ -6,22 +6,26 @@ are measured from that target, which leads the TCP).  An imitation learner given
 cannot tell those apart, and its fit stays poor wherever they decide the action
 (docs/baselines.md, "DAgger").  ``ReactiveInsertionExpert`` decides everything from one row of
 ``observation["state"]`` (the insertion task's privileged state, docs/tasks.md) and constants of
-the scene (the socket's orientation, the plug's geometry, the gripper's width, the table):
+the scene (the socket's orientation, the plug's geometry, the gripper's width, the table), and,
+for a learner's sake, mostly through ramps rather than switches, so that nearby states get
+nearby actions:
 
-- released and seated, or the tip within 4 mm of home with the pads off it: open the pads, then
-  rise 5 cm above the socket;
-- both pads on the plug: wait for the pads to settle if it was just closed on the table, lift
-  to carrying height, bring the tip ``pre_insert`` before the mouth on the socket axis, aligned
-  (roll chosen under the connector's symmetry), then drive it home along the axis; misaligned
-  inside the mouth, back straight out;
-- otherwise grasp: above the tail, pads open, yawed to the plug (the nearer of the two yaws),
-  descend, close; pads closed on nothing, or away from the grasp pose: reopen while rising.
+- grasping: a funnel onto the grasp pose (TCP down across the tail, yawed like the robot's
+  home): the goal hovers 5 cm above it while the TCP is off by more than 1.5 tolerances
+  (across or in rotation), sits on it within half a tolerance, and ramps in between; the pads
+  close on the same ramp, in height too; pads closed on nothing reopen while rising;
+- both pads on the plug: turn the plug onto the socket's rotation (the roll nearest under the
+  connector's symmetry), bring its tip onto the socket axis ``pre_insert`` before the mouth, and
+  drive it along the axis at ``insert_speed`` times (2 x alignment - 1): in while aligned, out
+  while not, still half-way; low over the table and far from the socket, rise first;
+- seated, or the tip within 4 mm of home with the pads off it: open the pads, then rise 5 cm.
 
-Each step the goal pose is turned into a Cartesian delta measured from the TCP (``gain`` of the
-error, capped at the phase's speed), not from the controller's target: the target integrates
-those deltas, so the TCP still settles on the goal (and the servos' sag is taken up), and the
-label stays a function of what the state shows.  ``phase_names()`` says which rule chose each
-action.  Only ``control="cartesian"``, the insertion task; deterministic, no diversity.
+Commands are moves of the TCP per step (``gain`` of its error, capped), measured from the TCP,
+not from the controller's target: the target integrates them, so the TCP still settles where it
+should (the servos' sag is taken up), and the label stays a function of what the state shows.
+The switches left are on inputs the state gives exactly: the pads' contact flags, the seated
+test and a gripper closed past the tail.  ``phase_names()`` says which rule chose each action.
+Only ``control="cartesian"`` and the insertion task; deterministic, no diversity.
 """
 
 from __future__ import annotations
@@ -81,23 +85,27 @@ class StateLayout:
 
 
 class ReactiveInsertionExpert:
-    """``ReactiveInsertionExpert(env_or_envs)``; ``act(states)`` maps (N, state_dim) insertion
-    states to (N, 7) ``cartesian`` actions (module docstring).  The scene constants come from
-    the first environment: the socket's orientation is fixed across episodes (only its position
-    is randomized), the plug's geometry by the connector."""
+    """``ReactiveInsertionExpert(env_or_envs, gain=None)``; ``act(states)`` maps (N,
+    state_dim) insertion states to (N, 7) ``cartesian`` actions (module docstring).  ``gain``
+    overrides the class's (in (0, 1]).  The scene constants come from the first environment:
+    the socket's orientation is fixed across episodes (only its position is randomized), the
+    plug's geometry by the connector."""
 
     hover = 0.05  # m above the grasp pose where the approach ends
     min_tcp_height = 0.013  # m: TCP above the table when grasping (pads clear it)
     grasp_back = 0.007  # m behind the tail's middle
     approach_pitch = 0.2  # rad the pads lean back toward the wire
     pre_open_margin = 0.02  # m: pads open to the tail width + this
-    at_grasp = 0.004  # m: position tolerance of the grasp pose (across and along up)
+    at_grasp = 0.004  # m: tolerance of the grasp pose across and in height (funnel ramps)
     grasp_rot_tol = 0.05  # rad
     carry_height = 0.07  # m of TCP above the table before the plug is carried sideways
     pre_insert = 0.02  # m: the tip this far before the mouth, aligned, before driving in
-    align_lateral = 0.0015  # m off the socket axis allowed to start driving in
+    # Alignment tolerances of the drive-in: within half of them it drives in, at them it holds,
+    # beyond 1.5 of them it backs out.  Past the mouth they widen to the clearance + 1 mm and
+    # inside_rot (the socket guides the plug).
+    align_lateral = 0.0015  # m of the tip off the socket axis
     align_rot = 0.02  # rad
-    inside_rot = 0.06  # rad: once in the mouth, the looser alignment that keeps driving in
+    inside_rot = 0.06  # rad
     push = 0.001  # m: the insert goal puts the tip this far past the seated target
     seated_axial = 0.001  # m
     seated_lateral = 0.0005  # m beyond the clearance
@@ -106,11 +114,14 @@ class ReactiveInsertionExpert:
     descend_speed = 0.004  # m per step
     align_speed = 0.006
     insert_speed = 0.0015
-    back_out_speed = 0.003
     retreat_speed = 0.004
     settle_rate = 0.005  # m/s of pad gap change under which closed pads count as settled
 
-    def __init__(self, env_or_envs) -> None:
+    def __init__(self, env_or_envs, gain: float | None = None) -> None:
+        if gain is not None:
+            if not 0.0 < gain <= 1.0:  # NaN fails too
+                raise ValueError(f"ReactiveInsertionExpert gain must be in (0, 1], got {gain}")
+            self.gain = float(gain)
         envs = unwrap_envs(env_or_envs)
         env = envs[0]
         if env.controller.name != "cartesian" or env.task.name != "insertion":
@@ -134,6 +145,7 @@ class ReactiveInsertionExpert:
         self.max_opening = float(robot.max_opening)
         self.translation_scale = controller.config.translation_scale
         self.rotation_scale = controller.config.rotation_scale
+        self.home_rot = np.asarray(robot.home_tcp_rot, float)
         self.layout = StateLayout(robot.dof)
         self.phase = np.zeros(len(envs), int)
 
@@ -151,16 +163,10 @@ class ReactiveInsertionExpert:
             raise ValueError("non-finite insertion state (diverged simulation?)")
         actions = np.zeros((len(states), 7))
         self.phase = np.zeros(len(states), int)
-        lay = self.layout
         for i, state in enumerate(states):
-            pos, rot, speed, gripper, phase = self._goal(state)
-            tcp, tcp_rot = state[lay.tcp_pos], _quat_to_mat(state[lay.tcp_quat])
-            move = self.gain * (pos - tcp)
-            dist = float(np.linalg.norm(move))
-            if dist > speed:
-                move *= speed / dist
+            move, turn, gripper, phase = self._command(state)
             actions[i, :3] = move / self.translation_scale
-            actions[i, 3:6] = self.gain * rotation_error(rot, tcp_rot) / self.rotation_scale
+            actions[i, 3:6] = turn / self.rotation_scale
             actions[i, 6] = gripper
             self.phase[i] = PHASES.index(phase)
         return np.clip(actions, -1.0, 1.0)
@@ -181,10 +187,11 @@ class ReactiveInsertionExpert:
             roll = step * round(roll / step)
         return self.port_rot @ _rot_x(roll)
 
-    def _grasp_pose(self, plug_pos, plug_rot, tcp_rot):
+    def _grasp_pose(self, plug_pos, plug_rot):
         """TCP pointing down across the tail, ``grasp_back`` behind its middle, at least
         ``min_tcp_height`` above the table, leaning ``approach_pitch`` toward the wire; of the
-        gripper's two equivalent yaws, the one nearer the TCP's."""
+        gripper's two equivalent yaws, the one nearer the robot's home orientation (a choice
+        by the TCP's own yaw would flip the goal, and the label, as the wrist turns)."""
         up = self.up
         axis = plug_rot[:, 0] - np.dot(plug_rot[:, 0], up) * up
         axis /= np.linalg.norm(axis)
@@ -196,83 +203,116 @@ class ReactiveInsertionExpert:
         for sign in (1.0, -1.0):
             across = sign * np.cross(up, axis)
             candidates.append(np.column_stack([np.cross(across, down), across, down]))
-        best = min(candidates, key=lambda r: np.linalg.norm(rotation_error(r, tcp_rot)))
+        best = min(candidates, key=lambda r: np.linalg.norm(rotation_error(r, self.home_rot)))
         lean = axis_angle_to_mat(np.cross(up, axis) * self.approach_pitch)
         if np.dot(-(lean @ best)[:, 2], axis) > 0:
             lean = lean.T
         return grasp, lean @ best
 
     # -- the rules ------------------------------------------------------------------------------
-    def _goal(self, state):
-        """(goal position, goal rotation, speed (m per step), gripper command, phase)."""
+    def _command(self, state):
+        """(TCP move (m), TCP turn (rotation vector, rad), gripper command, phase) for one
+        state, in the base frame, per control step."""
         lay, up = self.layout, self.up
         tcp, tcp_rot = state[lay.tcp_pos], _quat_to_mat(state[lay.tcp_quat])
-        plug_pos, plug_rot = state[lay.plug_pos], _quat_to_mat(state[lay.plug_quat])
-        entry, seated = state[lay.entry], state[lay.seated]
-        tip = seated - state[lay.tip_to_target]
         opening = state[lay.opening]
         held = bool(state[lay.pads].min() > 0.5)
         open_cmd = self._gripper_for_gap(self.tail_width + self.pre_open_margin)
-        opened = opening > self.tail_width + 0.5 * self.pre_open_margin
         home = state[lay.axial] < self.seated_axial and state[lay.lateral] < (
             self.clearance + self.seated_lateral
         )
-        height = float(np.dot(tcp, up)) - self.table
-
         if home or (not held and np.linalg.norm(state[lay.tip_to_target]) < 0.004):
-            if not opened:
-                return tcp, tcp_rot, 0.0, open_cmd, "release"
-            rise = max(0.0, float(np.dot(seated, up)) + self.retreat - float(np.dot(tcp, up)))
-            return tcp + rise * up, tcp_rot, self.retreat_speed, open_cmd, "retreat"
-
+            if opening < self.tail_width + 0.5 * self.pre_open_margin:
+                return np.zeros(3), np.zeros(3), open_cmd, "release"
+            top = float(np.dot(state[lay.seated], up)) + self.retreat
+            rise = min(self.retreat_speed, max(0.0, self.gain * (top - float(np.dot(tcp, up)))))
+            return rise * up, np.zeros(3), open_cmd, "retreat"
         if held:
-            if abs(state[lay.opening_rate]) > self.settle_rate and height < 0.03:
-                return tcp, tcp_rot, 0.0, 1.0, "settle"
-            return self._carry(tcp, tcp_rot, plug_pos, plug_rot, tip, entry, seated, height)
+            return self._carry(state, tcp, tcp_rot)
+        return self._grasp(state, tcp, tcp_rot, open_cmd)
 
-        grasp, grasp_rot = self._grasp_pose(plug_pos, plug_rot, tcp_rot)
-        above = float(np.dot(tcp - grasp, up))
-        across = float(np.linalg.norm(tcp - grasp - above * up))
-        if not opened:
-            at_grasp = across < self.at_grasp and abs(above) < self.at_grasp
-            if at_grasp and opening > self.tail_width - 0.004:
-                return grasp, grasp_rot, 1.0, 1.0, "close"
-            return tcp + 0.01 * up, tcp_rot, 1.0, open_cmd, "reopen"
-        if across > self.at_grasp or np.linalg.norm(rotation_error(grasp_rot, tcp_rot)) > (
-            self.grasp_rot_tol
-        ):
-            return grasp + self.hover * up, grasp_rot, 1.0, open_cmd, "approach"
-        if above > 0.002:
-            return grasp, grasp_rot, self.descend_speed, open_cmd, "descend"
-        return grasp, grasp_rot, 1.0, 1.0, "close"
+    def _grasp(self, state, tcp, tcp_rot, open_cmd):
+        """Pads open, down a funnel onto the grasp pose: the goal sits ``hover`` above it while
+        the TCP is more than 1.5 tolerances off (across or in rotation), on it within half a
+        tolerance, in between on a ramp; the pads close on the same ramp as the TCP nears it
+        in height too."""
+        lay, up = self.layout, self.up
+        if state[lay.opening] < self.tail_width - 0.004:  # closed on nothing: open, rise
+            return 0.01 * up, np.zeros(3), open_cmd, "reopen"
+        grasp, grasp_rot = self._grasp_pose(state[lay.plug_pos], _quat_to_mat(state[lay.plug_quat]))
+        turn = self.gain * rotation_error(grasp_rot, tcp_rot)
+        offset = tcp - grasp
+        above = float(offset @ up)
+        across = float(np.linalg.norm(offset - above * up))
+        off = max(across / self.at_grasp, np.linalg.norm(turn / self.gain) / self.grasp_rot_tol)
+        lift = float(np.clip(off - 0.5, 0.0, 1.0))
+        move = self.gain * (grasp + lift * self.hover * up - tcp)
+        down = float(move @ up)
+        if down < -self.descend_speed:  # the last centimetres slowly
+            move -= (down + self.descend_speed) * up
+        move = _capped(move, self.translation_scale)
+        closing = float(np.clip(2.0 - 2.0 * max(off, abs(above) / self.at_grasp), 0.0, 1.0))
+        gripper = open_cmd + closing * (1.0 - open_cmd)
+        if closing > 0.0:
+            phase = "close"
+        else:
+            phase = "approach" if lift > 0.5 else "descend"
+        return move, turn, gripper, phase
 
-    def _carry(self, tcp, tcp_rot, plug_pos, plug_rot, tip, entry, seated, height):
-        """Goals with the plug in the pads, through its pose in the TCP frame measured now."""
-        rel_rot = tcp_rot.T @ plug_rot
-        rel_pos = tcp_rot.T @ (plug_pos - tcp)
+    def _carry(self, state, tcp, tcp_rot):
+        """The plug in the pads: turn it onto the socket's rotation, bring its tip onto the
+        socket axis ``pre_insert`` before the mouth, and drive it in at ``insert_speed`` while
+        it is aligned (back it out as fast when it is not, stop half-way between); low over
+        the table, rise before moving sideways.  The plug's pose in the TCP frame is measured
+        from the state, so a plug that turned in the pads is followed."""
+        lay, up = self.layout, self.up
+        height = float(np.dot(tcp, up)) - self.table
+        if abs(state[lay.opening_rate]) > self.settle_rate and height < 0.03:
+            return np.zeros(3), np.zeros(3), 1.0, "settle"  # the pads still closing
+        plug_rot = _quat_to_mat(state[lay.plug_quat])
+        seated = state[lay.seated]
+        tip = seated - state[lay.tip_to_target]
         goal_rot = self._plug_goal_rot(plug_rot)
         axis = goal_rot[:, 0]
-
-        def tcp_for_tip(tip_goal):
-            rot = goal_rot @ rel_rot.T
-            return tip_goal - self.plug_length * axis - rot @ rel_pos, rot
-
-        offset = tip - entry
+        twist = rotation_error(goal_rot, plug_rot)  # turns the plug (and the TCP) onto goal_rot
+        offset = tip - state[lay.entry]
         along = float(offset @ axis)
-        lateral = float(np.linalg.norm(offset - along * axis))
-        misaligned = float(np.linalg.norm(rotation_error(goal_rot, plug_rot)))
-        inside = along > -0.003
-        aligned = (lateral < self.align_lateral and misaligned < self.align_rot) or (
-            inside and lateral < self.clearance + 0.001 and misaligned < self.inside_rot
+        lateral = offset - along * axis
+        inside = float(np.clip(along / 0.003, 0.0, 1.0))  # 0 outside the mouth, 1 past 3 mm
+        lateral_tol = self.align_lateral + inside * (self.clearance + 0.001 - self.align_lateral)
+        rot_tol = self.align_rot + inside * (self.inside_rot - self.align_rot)
+        misalignment = max(np.linalg.norm(lateral) / lateral_tol, np.linalg.norm(twist) / rot_tol)
+        aligned = float(np.clip(1.5 - misalignment, 0.0, 1.0))
+        drive = max(
+            self.gain * (-self.pre_insert - along),
+            self.insert_speed * (2.0 * aligned - 1.0),
         )
-        if aligned and along > -self.pre_insert - 0.003:
-            pos, rot = tcp_for_tip(seated + self.push * axis)
-            return pos, rot, self.insert_speed, 1.0, "insert"
-        if inside:
-            pos, _ = tcp_for_tip(tip - (along + self.pre_insert) * axis)
-            return pos, tcp_rot, self.back_out_speed, 1.0, "back_out"
-        pos, rot = tcp_for_tip(entry - self.pre_insert * axis)
-        sideways = pos - tcp - np.dot(pos - tcp, self.up) * self.up
-        if height < self.carry_height and np.linalg.norm(sideways) > 0.03:
-            return tcp + 0.02 * self.up, tcp_rot, 1.0, 1.0, "lift"
-        return pos, rot, self.align_speed, 1.0, "pre_insert"
+        drive = min(
+            drive, self.gain * (float((seated - state[lay.entry]) @ axis) + self.push - along)
+        )
+        tip_move = _capped(drive * axis - self.gain * lateral, self.align_speed)
+        turn = self.gain * twist
+        move = tip_move - np.cross(turn, tip - tcp)  # the turn about the TCP moves the tip too
+        # Low over the table and far from the socket, rise first (the port hangs 5-18 cm up).
+        far = np.linalg.norm(offset - float(offset @ up) * up)
+        free = max(
+            float(np.clip((height - 0.04) / (self.carry_height - 0.04), 0.0, 1.0)),
+            float(np.clip((0.05 - far) / 0.02, 0.0, 1.0)),
+        )
+        rise = min(0.01, self.gain * max(0.0, self.carry_height - height))
+        move = free * move + (1.0 - free) * rise * up
+        turn = free * turn
+        if free < 1.0:
+            phase = "lift"
+        elif along > -self.pre_insert - 0.003 and drive > 0.0:
+            phase = "insert"
+        elif along > -self.pre_insert and drive < 0.0:
+            phase = "back_out"
+        else:
+            phase = "pre_insert"
+        return _capped(move, self.translation_scale), turn, 1.0, phase
+
+
+def _capped(vector, limit: float) -> np.ndarray:
+    norm = float(np.linalg.norm(vector))
+    return vector if norm <= limit else vector * (limit / norm)
