@@ -79,6 +79,9 @@ def test_reactive_expert_refuses_bad_input():
     state[0, 20] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
         expert.act(state)
+    for gain in (0.0, -0.5, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="gain"):
+            ReactiveInsertionExpert(venv, gain=gain)
     venv.close()
     joint = wirecraft.make_vec("insertion", 1, threads=1, control="joint")
     with pytest.raises(ValueError, match="cartesian"):
