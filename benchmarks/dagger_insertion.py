@@ -2,6 +2,7 @@
 
     python benchmarks/dagger_insertion.py --out DIR [--iterations 8] [--connector ethernet]
         [--num-envs 64] [--eval-envs 32] [--hidden 256,256] [--epochs 15] [--threads 2]
+        [--expert scripted|reactive] [--expert-gain G]
 
 Plain behaviour cloning of the insertion expert (docs/baselines.md) fits its actions well and
 fails closed loop: the clone leaves the states the expert visits and never comes back.  DAgger
@@ -20,6 +21,10 @@ unlimited retries, and ``refresh_expert`` keeps its goals a function of the curr
 grasp is planned again on every approach and descend step (and once at the start of close),
 the lift rises from where the TCP is, an expert that finished while the plug is not seated,
 or is carrying while the pads hold nothing, starts over.
+
+``--expert reactive`` labels with ``wirecraft.experts.reactive.ReactiveInsertionExpert``
+instead, whose action is a function of the state alone (nothing to refresh; ``--expert-gain``
+sets its gain).
 
 Prints one JSON line per iteration (``collect``: the mixed wave's reach / insert rate at some
 step and mean steps with both pads on the plug; ``eval``: the learner's alone; ``fit_mse``) and
