@@ -46,11 +46,10 @@ from tqdm import tqdm
 
 import wirecraft
 from wirecraft.experts.insertion import InsertionExpert, InsertionExpertConfig
-from wirecraft.experts.reactive import ReactiveInsertionExpert
+from wirecraft.experts.reactive import ReactiveInsertionExpert, StateLayout
 
 EXPERT_SEED, COLLECT_SEED, EVAL_SEED = 7, 1000, 999
-PADS_ON_PLUG = (21, 22)  # state columns: left and right pad touch the plug (0 / 1)
-TIP_TO_TARGET = slice(23, 26)  # state columns: plug tip to its seated target (m)
+STATE = StateLayout(6)  # the UR5's 42-d insertion state: its columns
 NEAR_SOCKET = 0.04  # m: labels with the tip this close to home get --near-weight
 CARRYING = ("pre_insert", "insert", "back_out")
 FINISHED = ("release", "withdraw", "retreat", "done")
@@ -59,7 +58,9 @@ FINISHED = ("release", "withdraw", "retreat", "done")
 class Learner:
     """An MLP from the standardised state to the 7-d action, fitted by MSE."""
 
-    def __init__(self, hidden: tuple[int, ...], obs_dim: int = 42, action_dim: int = 7) -> None:
+    def __init__(
+        self, hidden: tuple[int, ...], obs_dim: int = STATE.size, action_dim: int = 7
+    ) -> None:
         layers, width = [], obs_dim
         for h in hidden:
             layers += [torch.nn.Linear(width, h), torch.nn.ELU()]
@@ -75,7 +76,7 @@ class Learner:
         """Weighted MSE; returns the last epoch's mean (unweighted) squared error."""
         x = torch.tensor(obs, dtype=torch.float32)
         y = torch.tensor(actions, dtype=torch.float32)
-        near = np.linalg.norm(obs[:, TIP_TO_TARGET], axis=1) < NEAR_SOCKET
+        near = np.linalg.norm(obs[:, STATE.tip_to_target], axis=1) < NEAR_SOCKET
         weight = torch.tensor(np.where(near, near_weight, 1.0), dtype=torch.float32)[:, None]
         self.mean, self.std = x.mean(0), x.std(0) + 1e-6
         x = (x - self.mean) / self.std
@@ -169,7 +170,7 @@ def run_wave(venv, expert, learner, beta: float, seed: int, rng) -> tuple:
         seated = np.asarray(info["insert_success"], bool)
         reach |= np.asarray(info["reach_success"], bool)
         insert |= seated
-        pads += obs[:, PADS_ON_PLUG[0]] * obs[:, PADS_ON_PLUG[1]]
+        pads += obs[:, STATE.pads].prod(axis=1)  # both pads on the plug
         if (terminated | truncated).any():
             break
     stats = {

@@ -276,6 +276,49 @@ def _rot_x(angle: float) -> np.ndarray:
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
+# -- geometry shared with the reactive expert (experts/reactive.py) ----------------------------
+def grasp_pose(grasp_point, plug_rot, up, table_height, *, back, min_height, pitch, reference):
+    """Grasp pose (base frame) from the plug as it lies: TCP pointing down, pads closing across
+    the tail ``back`` m behind ``grasp_point``, at least ``min_height`` above the table, the
+    pads' tops leaning ``pitch`` rad back toward the wire; of the parallel gripper's two
+    equivalent yaws, the one nearer the rotation ``reference``."""
+    axis = plug_rot[:, 0] - np.dot(plug_rot[:, 0], up) * up
+    axis /= np.linalg.norm(axis)
+    grasp = grasp_point - back * axis
+    height = np.dot(grasp, up) - table_height
+    grasp = grasp + (max(height, min_height) - height) * up
+    z = -up
+    best = None
+    for sign in (1.0, -1.0):
+        y = sign * np.cross(up, axis)
+        rot = np.column_stack([np.cross(y, z), y, z])
+        if best is None or rotation_angle(rot, reference) < rotation_angle(best, reference):
+            best = rot
+    # The lean lets the gripper later pitch forward (to keep a plug that turns in the pads
+    # aligned) without its pads reaching the port's face.
+    lean = axis_angle_to_mat(np.cross(up, axis) * pitch)
+    if np.dot(-(lean @ best)[:, 2], axis) > 0:
+        lean = lean.T
+    return grasp, lean @ best
+
+
+def plug_goal_rot(port_rot, plug_rot, symmetry: int) -> np.ndarray:
+    """Plug rotation (base frame) aligned with the socket, its roll the equivalent (under the
+    connector's ``symmetry``, 0: continuous) nearest to the plug's current roll."""
+    axis = port_rot[:, 0]
+    up = plug_rot[:, 2] - np.dot(plug_rot[:, 2], axis) * axis
+    roll = math.atan2(float(np.dot(np.cross(port_rot[:, 2], up), axis)), float(port_rot[:, 2] @ up))
+    if symmetry > 0:
+        step = 2 * math.pi / symmetry
+        roll = step * round(roll / step)
+    return port_rot @ _rot_x(roll)
+
+
+def gripper_for_gap(gap: float, max_opening: float) -> float:
+    """Gripper command for a pad gap of ``gap`` m."""
+    return 1.0 - 2.0 * min(gap, max_opening) / max_opening
+
+
 class InsertionExpert(ScriptedExpert):
     """Vectorized scripted expert for the insertion task (N environments, N = 1 for one env).
 
@@ -388,32 +431,21 @@ class InsertionExpert(ScriptedExpert):
 
     # -- snapshots ---------------------------------------------------------------------------
     def _take_grasp_goal(self, i) -> None:
-        """Grasp pose (base frame) from the plug as it lies: TCP pointing down, pads closing
-        across the tail; of the two equivalent yaws of the parallel gripper, the nearer one."""
+        """Grasp pose (``grasp_pose``) from the plug as it lies; of the two equivalent yaws,
+        the one nearer the controller's target."""
         cfg, view = self.config, self.views[i]
-        up = view.up
-        axis = view.plug_rot[:, 0] - np.dot(view.plug_rot[:, 0], up) * up
-        axis /= np.linalg.norm(axis)
-        grasp = view.grasp_point - self.grasp_back[i] * axis
-        height = np.dot(grasp, up) - view.table_height
-        grasp = grasp + (max(height, cfg.min_tcp_height) - height) * up
-        z = -up
-        best = None
-        for sign in (1.0, -1.0):
-            y = sign * np.cross(up, axis)
-            rot = np.column_stack([np.cross(y, z), y, z])
-            if best is None or rotation_angle(rot, view.target_rot) < rotation_angle(
-                best, view.target_rot
-            ):
-                best = rot
-        # Approach pitch: the pads' tops lean back toward the wire, so the gripper may later
-        # pitch forward (to keep a plug that turns in the pads aligned) without its pads
-        # reaching the port's face.
-        lean = axis_angle_to_mat(np.cross(up, axis) * self.approach_pitch[i])
-        if np.dot(-(lean @ best)[:, 2], axis) > 0:
-            lean = lean.T
+        grasp, rot = grasp_pose(
+            view.grasp_point,
+            view.plug_rot,
+            view.up,
+            view.table_height,
+            back=self.grasp_back[i],
+            min_height=cfg.min_tcp_height,
+            pitch=self.approach_pitch[i],
+            reference=view.target_rot,
+        )
         self.fsm.snapshots["grasp_pos"][i] = grasp
-        self.fsm.snapshots["grasp_rot"][i] = lean @ best
+        self.fsm.snapshots["grasp_rot"][i] = rot
 
     def _grasp_transform(self, i) -> np.ndarray:
         """(4, 4) the plug's pose in the TCP frame now."""
@@ -425,19 +457,9 @@ class InsertionExpert(ScriptedExpert):
 
     # -- geometry of the insertion -------------------------------------------------------------
     def _plug_goal_rot(self, i) -> np.ndarray:
-        """Plug rotation (base frame) aligned with the socket, its roll the equivalent (under
-        the connector's symmetry) nearest to the plug's current roll."""
+        """``plug_goal_rot`` of the plug now."""
         view = self.views[i]
-        port_rot, plug_rot = view.port_rot, view.plug_rot
-        axis = port_rot[:, 0]
-        up = plug_rot[:, 2] - np.dot(plug_rot[:, 2], axis) * axis
-        roll = math.atan2(
-            float(np.dot(np.cross(port_rot[:, 2], up), axis)), float(port_rot[:, 2] @ up)
-        )
-        if view.symmetry > 0:
-            step = 2 * math.pi / view.symmetry
-            roll = step * round(roll / step)
-        return port_rot @ _rot_x(roll)
+        return plug_goal_rot(view.port_rot, view.plug_rot, view.symmetry)
 
     def _tcp_for_tip(self, i, tip, plug_rot):
         """TCP pose (base frame) that puts the held plug's tip at ``tip`` with rotation
@@ -453,14 +475,10 @@ class InsertionExpert(ScriptedExpert):
         return plug_pos - tcp_rot @ rel[:3, 3], tcp_rot
 
     # -- control -------------------------------------------------------------------------------
-    def _gripper_for_gap(self, i, gap: float) -> float:
-        """Gripper command for a pad gap of ``gap`` m."""
-        max_opening = self.views[i].max_opening
-        return 1.0 - 2.0 * min(gap, max_opening) / max_opening
-
     def _pre_open(self, i) -> float:
         """Gripper command opening the pads to the tail width + a margin."""
-        return self._gripper_for_gap(i, self.views[i].tail_width + self.config.pre_open_margin)
+        view = self.views[i]
+        return gripper_for_gap(view.tail_width + self.config.pre_open_margin, view.max_opening)
 
     def _opened(self, i) -> bool:
         view = self.views[i]

@@ -30,13 +30,11 @@ Only ``control="cartesian"`` and the insertion task; deterministic, no diversity
 
 from __future__ import annotations
 
-import math
-
-import mujoco
 import numpy as np
 
-from wirecraft.assets.robots.kinematics import axis_angle_to_mat, rotation_error
+from wirecraft.assets.robots.kinematics import quat_to_mat, rotation_error
 from wirecraft.experts.fsm import unwrap_envs
+from wirecraft.experts.insertion import grasp_pose, gripper_for_gap, plug_goal_rot
 
 PHASES = (
     "approach",
@@ -51,17 +49,6 @@ PHASES = (
     "release",
     "retreat",
 )
-
-
-def _quat_to_mat(quat) -> np.ndarray:
-    mat = np.zeros(9)
-    mujoco.mju_quat2Mat(mat, np.asarray(quat, float))
-    return mat.reshape(3, 3)
-
-
-def _rot_x(angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 class StateLayout:
@@ -142,7 +129,9 @@ class ReactiveInsertionExpert:
         self.tail_width = 2.0 * float(max(connector.tail_half[1:]))
         self.clearance = float(connector.clearance)
         self.symmetry = int(connector.symmetry)
-        self.max_opening = float(robot.max_opening)
+        self.open_command = gripper_for_gap(  # pads open to the tail width + the margin
+            self.tail_width + self.pre_open_margin, float(robot.max_opening)
+        )
         self.translation_scale = controller.config.translation_scale
         self.rotation_scale = controller.config.rotation_scale
         self.home_rot = np.asarray(robot.home_tcp_rot, float)
@@ -171,80 +160,58 @@ class ReactiveInsertionExpert:
             self.phase[i] = PHASES.index(phase)
         return np.clip(actions, -1.0, 1.0)
 
-    # -- geometry -------------------------------------------------------------------------------
-    def _gripper_for_gap(self, gap: float) -> float:
-        return 1.0 - 2.0 * min(gap, self.max_opening) / self.max_opening
-
-    def _plug_goal_rot(self, plug_rot) -> np.ndarray:
-        """The socket's rotation with the roll (under the connector's symmetry) nearest the
-        plug's."""
-        axis = self.port_rot[:, 0]
-        top = plug_rot[:, 2] - np.dot(plug_rot[:, 2], axis) * axis
-        port_top = self.port_rot[:, 2]
-        roll = math.atan2(float(np.dot(np.cross(port_top, top), axis)), float(port_top @ top))
-        if self.symmetry > 0:
-            step = 2 * math.pi / self.symmetry
-            roll = step * round(roll / step)
-        return self.port_rot @ _rot_x(roll)
-
+    # -- geometry (shared with the scripted expert) ---------------------------------------------
     def _grasp_pose(self, plug_pos, plug_rot):
-        """TCP pointing down across the tail, ``grasp_back`` behind its middle, at least
-        ``min_tcp_height`` above the table, leaning ``approach_pitch`` toward the wire; of the
-        gripper's two equivalent yaws, the one nearer the robot's home orientation (a choice
-        by the TCP's own yaw would flip the goal, and the label, as the wrist turns)."""
-        up = self.up
-        axis = plug_rot[:, 0] - np.dot(plug_rot[:, 0], up) * up
-        axis /= np.linalg.norm(axis)
-        grasp = plug_pos + plug_rot @ self.grasp_local - self.grasp_back * axis
-        height = float(np.dot(grasp, up)) - self.table
-        grasp = grasp + (max(height, self.min_tcp_height) - height) * up
-        down = -up
-        candidates = []
-        for sign in (1.0, -1.0):
-            across = sign * np.cross(up, axis)
-            candidates.append(np.column_stack([np.cross(across, down), across, down]))
-        best = min(candidates, key=lambda r: np.linalg.norm(rotation_error(r, self.home_rot)))
-        lean = axis_angle_to_mat(np.cross(up, axis) * self.approach_pitch)
-        if np.dot(-(lean @ best)[:, 2], axis) > 0:
-            lean = lean.T
-        return grasp, lean @ best
+        """``grasp_pose`` of the plug; of the gripper's two equivalent yaws, the one nearer the
+        robot's home orientation (a choice by the TCP's own yaw, as the scripted expert makes
+        by its target's, would flip the goal, and the label, as the wrist turns)."""
+        return grasp_pose(
+            plug_pos + plug_rot @ self.grasp_local,
+            plug_rot,
+            self.up,
+            self.table,
+            back=self.grasp_back,
+            min_height=self.min_tcp_height,
+            pitch=self.approach_pitch,
+            reference=self.home_rot,
+        )
 
     # -- the rules ------------------------------------------------------------------------------
     def _command(self, state):
         """(TCP move (m), TCP turn (rotation vector, rad), gripper command, phase) for one
         state, in the base frame, per control step."""
         lay, up = self.layout, self.up
-        tcp, tcp_rot = state[lay.tcp_pos], _quat_to_mat(state[lay.tcp_quat])
+        tcp, tcp_rot = state[lay.tcp_pos], quat_to_mat(state[lay.tcp_quat])
         opening = state[lay.opening]
         held = bool(state[lay.pads].min() > 0.5)
-        open_cmd = self._gripper_for_gap(self.tail_width + self.pre_open_margin)
         home = state[lay.axial] < self.seated_axial and state[lay.lateral] < (
             self.clearance + self.seated_lateral
         )
         if home or (not held and np.linalg.norm(state[lay.tip_to_target]) < 0.004):
             if opening < self.tail_width + 0.5 * self.pre_open_margin:
-                return np.zeros(3), np.zeros(3), open_cmd, "release"
+                return np.zeros(3), np.zeros(3), self.open_command, "release"
             top = float(np.dot(state[lay.seated], up)) + self.retreat
             rise = min(self.retreat_speed, max(0.0, self.gain * (top - float(np.dot(tcp, up)))))
-            return rise * up, np.zeros(3), open_cmd, "retreat"
+            return rise * up, np.zeros(3), self.open_command, "retreat"
         if held:
             return self._carry(state, tcp, tcp_rot)
-        return self._grasp(state, tcp, tcp_rot, open_cmd)
+        return self._grasp(state, tcp, tcp_rot)
 
-    def _grasp(self, state, tcp, tcp_rot, open_cmd):
+    def _grasp(self, state, tcp, tcp_rot):
         """Pads open, down a funnel onto the grasp pose: the goal sits ``hover`` above it while
         the TCP is more than 1.5 tolerances off (across or in rotation), on it within half a
         tolerance, in between on a ramp; the pads close on the same ramp as the TCP nears it
         in height too."""
-        lay, up = self.layout, self.up
+        lay, up, open_cmd = self.layout, self.up, self.open_command
         if state[lay.opening] < self.tail_width - 0.004:  # closed on nothing: open, rise
             return 0.01 * up, np.zeros(3), open_cmd, "reopen"
-        grasp, grasp_rot = self._grasp_pose(state[lay.plug_pos], _quat_to_mat(state[lay.plug_quat]))
-        turn = self.gain * rotation_error(grasp_rot, tcp_rot)
+        grasp, grasp_rot = self._grasp_pose(state[lay.plug_pos], quat_to_mat(state[lay.plug_quat]))
+        turning = rotation_error(grasp_rot, tcp_rot)
+        turn = self.gain * turning
         offset = tcp - grasp
         above = float(offset @ up)
         across = float(np.linalg.norm(offset - above * up))
-        off = max(across / self.at_grasp, np.linalg.norm(turn / self.gain) / self.grasp_rot_tol)
+        off = max(across / self.at_grasp, np.linalg.norm(turning) / self.grasp_rot_tol)
         lift = float(np.clip(off - 0.5, 0.0, 1.0))
         move = self.gain * (grasp + lift * self.hover * up - tcp)
         down = float(move @ up)
@@ -269,10 +236,10 @@ class ReactiveInsertionExpert:
         height = float(np.dot(tcp, up)) - self.table
         if abs(state[lay.opening_rate]) > self.settle_rate and height < 0.03:
             return np.zeros(3), np.zeros(3), 1.0, "settle"  # the pads still closing
-        plug_rot = _quat_to_mat(state[lay.plug_quat])
+        plug_rot = quat_to_mat(state[lay.plug_quat])
         seated = state[lay.seated]
         tip = seated - state[lay.tip_to_target]
-        goal_rot = self._plug_goal_rot(plug_rot)
+        goal_rot = plug_goal_rot(self.port_rot, plug_rot, self.symmetry)
         axis = goal_rot[:, 0]
         twist = rotation_error(goal_rot, plug_rot)  # turns the plug (and the TCP) onto goal_rot
         offset = tip - state[lay.entry]
