@@ -2,7 +2,7 @@
 
     python benchmarks/dagger_insertion.py --out DIR [--iterations 8] [--connector ethernet]
         [--num-envs 64] [--eval-envs 32] [--hidden 256,256] [--epochs 15] [--threads 2]
-        [--expert scripted|reactive] [--expert-gain G]
+        [--expert scripted|reactive] [--expert-gain G] [--features state|relative]
 
 Plain behaviour cloning of the insertion expert (docs/baselines.md) fits its actions well and
 fails closed loop: the clone leaves the states the expert visits and never comes back.  DAgger
@@ -24,7 +24,8 @@ or is carrying while the pads hold nothing, starts over.
 
 ``--expert reactive`` labels with ``wirecraft.experts.reactive.ReactiveInsertionExpert``
 instead, whose action is a function of the state alone (nothing to refresh; ``--expert-gain``
-sets its gain).
+sets its gain).  ``--features relative`` gives the learner goal-relative inputs computed from
+the state as well (``relative_features``).
 
 Prints one JSON line per iteration (``collect``: the mixed wave's reach / insert rate at some
 step and mean steps with both pads on the plug; ``eval``: the learner's alone; ``fit_mse``) and
@@ -47,20 +48,25 @@ from tqdm import tqdm
 import wirecraft
 from wirecraft.experts.insertion import InsertionExpert, InsertionExpertConfig
 from wirecraft.experts.reactive import ReactiveInsertionExpert, StateLayout
+from wirecraft.rl.features import actor_input_dim, relative_features
 
 EXPERT_SEED, COLLECT_SEED, EVAL_SEED = 7, 1000, 999
 STATE = StateLayout(6)  # the UR5's 42-d insertion state: its columns
 NEAR_SOCKET = 0.04  # m: labels with the tip this close to home get --near-weight
 CARRYING = ("pre_insert", "insert", "back_out")
 FINISHED = ("release", "withdraw", "retreat", "done")
+FEATURES = {"state": lambda states: states, "relative": relative_features}  # learner inputs
 
 
 class Learner:
     """An MLP from the standardised state to the 7-d action, fitted by MSE."""
 
     def __init__(
-        self, hidden: tuple[int, ...], obs_dim: int = STATE.size, action_dim: int = 7
+        self, hidden: tuple[int, ...], features: str = "state", action_dim: int = 7
     ) -> None:
+        self.features = features
+        self.transform = FEATURES[features]
+        obs_dim = actor_input_dim(features, STATE.size)
         layers, width = [], obs_dim
         for h in hidden:
             layers += [torch.nn.Linear(width, h), torch.nn.ELU()]
@@ -74,7 +80,7 @@ class Learner:
         self, obs: np.ndarray, actions: np.ndarray, epochs: int, near_weight: float = 1.0
     ) -> float:
         """Weighted MSE; returns the last epoch's mean (unweighted) squared error."""
-        x = torch.tensor(obs, dtype=torch.float32)
+        x = torch.tensor(self.transform(obs), dtype=torch.float32)
         y = torch.tensor(actions, dtype=torch.float32)
         near = np.linalg.norm(obs[:, STATE.tip_to_target], axis=1) < NEAR_SOCKET
         weight = torch.tensor(np.where(near, near_weight, 1.0), dtype=torch.float32)[:, None]
@@ -95,12 +101,13 @@ class Learner:
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            x = (torch.tensor(obs, dtype=torch.float32) - self.mean) / self.std
+            x = torch.tensor(self.transform(obs), dtype=torch.float32)
+            x = (x - self.mean) / self.std
             return np.clip(self.net(x).numpy(), -1.0, 1.0)
 
     def save(self, path: Path) -> None:
         state = {"net": self.net.state_dict(), "mean": self.mean, "std": self.std}
-        torch.save({**state, "hidden": self.hidden}, path)
+        torch.save({**state, "hidden": self.hidden, "features": self.features}, path)
 
 
 def labelling_expert(venv) -> InsertionExpert:
@@ -210,6 +217,12 @@ def main() -> None:
         default=None,
         help="the reactive expert's gain, in (0, 1] (default: its own, 0.5)",
     )
+    parser.add_argument(
+        "--features",
+        choices=tuple(FEATURES),
+        default="state",
+        help="learner inputs: the 42-d state, or it plus goal-relative ones (relative_features)",
+    )
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
     try:
@@ -239,7 +252,7 @@ def main() -> None:
     eval_venv = wirecraft.make_vec("insertion", args.eval_envs, connector=args.connector, **options)
     args.out.mkdir(parents=True, exist_ok=True)
     expert = make_expert(args.expert, venv, args.expert_gain)
-    learner = Learner(hidden)
+    learner = Learner(hidden, args.features)
     states, labels, phases = [], [], []
     start = time.time()
     for it in tqdm(range(args.iterations), desc="DAgger iterations"):

@@ -27,6 +27,12 @@ def test_batched_rotation_helpers_match_mujoco_and_the_scalar_forms():
     for rot, quat in zip(rots, quats, strict=True):
         reference = K.mat_to_quat(rot)  # mju_mat2Quat
         assert np.allclose(quat, reference, atol=1e-12) or np.allclose(quat, -reference, atol=1e-12)
+    # Back through mju_quat2Mat, from q, from -q and from a quaternion of another length.
+    for sign, scale in ((1.0, 1.0), (-1.0, 1.0), (1.0, 2.5)):
+        mats = K.quats_to_mats(sign * scale * quats)
+        for quat, mat in zip(quats, mats, strict=True):
+            np.testing.assert_allclose(mat, K.quat_to_mat(quat), atol=1e-12)
+    np.testing.assert_allclose(K.quats_to_mats(quats), rots, atol=1e-12)
     vecs = RNG.normal(size=(32, 3))
     vecs[0] = 0.0  # no rotation
     mats = K.axis_angle_to_mats(vecs)

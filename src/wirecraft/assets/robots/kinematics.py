@@ -168,6 +168,19 @@ def mats_to_quats(mats: np.ndarray) -> np.ndarray:
     return quats
 
 
+def quats_to_mats(quats: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations of (N, 4) quaternions (w, x, y, z), normalised first: ``mju_quat2Mat``
+    per row, in numpy (learners map whole batches of states)."""
+    q = np.asarray(quats, dtype=float)
+    w, x, y, z = (q / np.linalg.norm(q, axis=-1, keepdims=True)).T
+    rows = (
+        (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)),
+        (2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)),
+        (2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)),
+    )
+    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+
+
 def quats_near(mats: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """(N, 4) unit quaternions (w, x, y, z) of (N, 3, 3) rotations, each with the sign that puts
     it in the hemisphere of ``reference``'s quaternion (one (3, 3) rotation, or (N, 3, 3): one
