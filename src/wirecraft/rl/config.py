@@ -94,9 +94,26 @@ class PPOConfig:
     # bc_init_epochs passes.  0: PPO starts from random weights.
     bc_init_transitions: int = 0
     bc_init_epochs: int = 10
+    # Not in the reference: the actor's inputs (rl/features.py): "state", the 42-d state as the
+    # critic sees it, or "relative", the state plus goal-relative vectors computed from it.
+    actor_inputs: str = "state"
+    # Not in the reference: before the first iteration, DAgger (rl/dagger.py) from the reactive
+    # insertion expert: dagger_init_iterations waves of every environment, each labelled by the
+    # expert and followed by dagger_init_epochs passes of the actor over all labels; then the
+    # critic is fitted to the waves' returns.  0: off.
+    dagger_init_iterations: int = 0
+    dagger_init_epochs: int = 15
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
+        if self.actor_inputs not in ("state", "relative"):
+            raise ValueError(
+                f"{owner}: actor_inputs must be 'state' or 'relative', got {self.actor_inputs!r}"
+            )
+        _int_at_least(owner, "dagger_init_iterations", self.dagger_init_iterations, 0)
+        _int_at_least(owner, "dagger_init_epochs", self.dagger_init_epochs, 1)
+        if self.dagger_init_iterations and self.bc_init_transitions:
+            raise ValueError(f"{owner}: choose dagger_init_iterations or bc_init_transitions")
         _int_at_least(owner, "bc_init_transitions", self.bc_init_transitions, 0)
         _int_at_least(owner, "bc_init_epochs", self.bc_init_epochs, 1)
         _fraction(owner, "expert_starts", self.expert_starts)
@@ -175,9 +192,11 @@ class VisionPPOConfig(PPOConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         owner = type(self).__name__
-        for name in ("expert_starts", "bc_init_transitions"):  # state PPO's; ours clones itself
-            if getattr(self, name):
+        for name in ("expert_starts", "bc_init_transitions", "dagger_init_iterations"):
+            if getattr(self, name):  # state PPO's; ours clones itself
                 raise ValueError(f"{owner}: {name} is for state PPO; it must be 0 here")
+        if self.actor_inputs != "state":
+            raise ValueError(f"{owner}: actor_inputs is for state PPO; it must be 'state' here")
         if self.backbone != "small_cnn" and not self.backbone.startswith("timm:"):
             raise ValueError(
                 f"{owner}: backbone must be 'small_cnn' or 'timm:<model name>', "

@@ -50,6 +50,37 @@ def state_observations(obs) -> dict:
     return {"policy": obs}
 
 
+def observation_groups(actor_inputs: str = "state") -> Callable:
+    """The observation groups of state PPO whose actor sees ``actor_inputs`` (rl/features.py):
+    ``policy``, the state (the critic's, and the actor's for "state"), and ``actor``, the
+    actor's inputs computed from it otherwise."""
+    from wirecraft.rl.features import ACTOR_INPUTS
+
+    if actor_inputs == "state":
+        return state_observations
+    transform = ACTOR_INPUTS[actor_inputs]
+
+    def groups(obs) -> dict:
+        state = obs.numpy() if hasattr(obs, "numpy") else np.asarray(obs)
+        return {"policy": obs, "actor": transform(state)}
+
+    return groups
+
+
+def actor_groups(actor_inputs: str = "state") -> tuple[str, ...]:
+    """The observation group the actor reads (``observation_groups``)."""
+    return ("policy",) if actor_inputs == "state" else ("actor",)
+
+
+def tensor_groups(groups: dict) -> dict:
+    """``observation_groups``' output as float32 tensors."""
+    torch = _torch()
+    return {
+        k: v.float() if torch.is_tensor(v) else torch.as_tensor(np.asarray(v)).float()
+        for k, v in groups.items()
+    }
+
+
 def make_vec_env_adapter(venv, *, reward_scale: float, seed: int, obs_groups: Callable = None):
     """An ``rsl_rl.env.VecEnv`` over a WireCraft vector env (built lazily: rsl-rl imports
     torch)."""
@@ -76,12 +107,7 @@ def make_vec_env_adapter(venv, *, reward_scale: float, seed: int, obs_groups: Ca
             self._obs = self._tensordict(obs)
 
         def _tensordict(self, obs):
-            groups = group_fn(obs)
-            tensors = {
-                k: v.float() if torch.is_tensor(v) else torch.as_tensor(np.asarray(v)).float()
-                for k, v in groups.items()
-            }
-            return TensorDict(tensors, batch_size=[self.num_envs])
+            return TensorDict(tensor_groups(group_fn(obs)), batch_size=[self.num_envs])
 
         def get_observations(self):
             return self._obs
@@ -311,14 +337,19 @@ def behaviour_clone_init(
     batch_size: int = 256,
     learning_rate: float = 1e-3,
     progress: bool = True,
+    obs_groups: Callable = state_observations,
+    fit_critic: bool = True,
 ) -> dict[str, float]:
     """Warm start of a fresh PPO run from scripted-expert ``demos`` (``sacfd.
     collect_demonstrations``: whole episodes of ``episode_steps`` transitions, in order, rewards
-    already scaled): both observation normalisers take the demonstrations' statistics, the
-    actor's mean is fitted to the demonstrated actions and the critic to their discounted
-    returns (MSE, on standardised returns), so that PPO's first updates start from the
-    expert's behaviour and a value function that knows it.  Returns the last epoch's mean
-    losses (the critic's in the returns' units)."""
+    already scaled; or, with ``returns``, each transition's discounted return): both
+    observation normalisers take the demonstrations' statistics, the actor's mean is fitted to
+    the demonstrated actions and the critic to their discounted returns (MSE, on standardised
+    returns), so that PPO's first updates start from the expert's behaviour and a value
+    function that knows it.  Returns the last epoch's mean
+    losses (the critic's in the returns' units).  ``obs_groups`` maps the states to the
+    observation groups (``observation_groups``); ``fit_critic`` False leaves the critic (and
+    its normaliser) alone, as DAgger's intermediate fits do."""
     from tensordict import TensorDict
     from tqdm import tqdm
 
@@ -328,13 +359,16 @@ def behaviour_clone_init(
         raise ValueError(f"behaviour cloning needs at least one whole {episode_steps}-step episode")
     obs = demos["observations"][:whole]
     actions = demos["actions"][:whole]
-    rewards = demos["rewards"][:whole, 0].reshape(-1, episode_steps)
-    returns = torch.zeros_like(rewards)
-    running = torch.zeros(len(rewards))
-    for t in range(episode_steps - 1, -1, -1):
-        running = rewards[:, t] + gamma * running
-        returns[:, t] = running
-    returns = returns.reshape(-1, 1)
+    if "returns" in demos:  # computed by the caller (DAgger's waves)
+        returns = demos["returns"][:whole].reshape(-1, 1)
+    else:
+        rewards = demos["rewards"][:whole, 0].reshape(-1, episode_steps)
+        returns = torch.zeros_like(rewards)
+        running = torch.zeros(len(rewards))
+        for t in range(episode_steps - 1, -1, -1):
+            running = rewards[:, t] + gamma * running
+            returns[:, t] = running
+        returns = returns.reshape(-1, 1)
     # Returns run to ~1e3 (a seated plug pays 1000 x reward_scale per step), far beyond what a
     # few thousand Adam steps of size ~learning_rate move a freshly initialised output to.
     # The critic is fitted to standardised returns, and its output layer then scaled back.
@@ -342,12 +376,13 @@ def behaviour_clone_init(
     targets = (returns - centre) / spread
     actor, critic = runner.alg.actor, runner.alg.critic
     output = [m for m in critic.mlp.modules() if isinstance(m, torch.nn.Linear)][-1]
-    everything = TensorDict({"policy": obs}, batch_size=[whole])
-    actor.train()
-    critic.train()
-    actor.update_normalization(everything)
-    critic.update_normalization(everything)
-    optimizer = torch.optim.Adam([*actor.parameters(), *critic.parameters()], lr=learning_rate)
+    everything = TensorDict(tensor_groups(obs_groups(obs)), batch_size=[whole])
+    models = [actor, critic] if fit_critic else [actor]
+    for model in models:
+        model.train()
+        model.update_normalization(everything)
+    parameters = [p for model in models for p in model.parameters()]
+    optimizer = torch.optim.Adam(parameters, lr=learning_rate)
     generator = torch.Generator().manual_seed(seed)
     losses = {"actor": float("nan"), "critic": float("nan")}
     for _ in tqdm(range(epochs), desc="behaviour cloning", disable=not progress):
@@ -355,16 +390,20 @@ def behaviour_clone_init(
         sums, batches = {"actor": 0.0, "critic": 0.0}, 0
         for start in range(0, whole, batch_size):
             idx = order[start : start + batch_size]
-            batch = TensorDict({"policy": obs[idx]}, batch_size=[len(idx)])
-            actor_loss = torch.nn.functional.mse_loss(actor(batch), actions[idx])
-            critic_loss = torch.nn.functional.mse_loss(critic(batch), targets[idx])
+            batch = everything[idx]
+            loss = actor_loss = torch.nn.functional.mse_loss(actor(batch), actions[idx])
+            if fit_critic:
+                critic_loss = torch.nn.functional.mse_loss(critic(batch), targets[idx])
+                loss = actor_loss + critic_loss
+                sums["critic"] += float(critic_loss.detach())
             optimizer.zero_grad()
-            (actor_loss + critic_loss).backward()
+            loss.backward()
             optimizer.step()
             sums["actor"] += float(actor_loss.detach())
-            sums["critic"] += float(critic_loss.detach())
             batches += 1
         losses = {k: v / batches for k, v in sums.items()}
+    if not fit_critic:
+        return {"actor": losses["actor"], "critic": float("nan")}
     with torch.no_grad():
         output.weight.mul_(spread)
         output.bias.mul_(spread).add_(centre)
@@ -383,11 +422,14 @@ def iterations_for(cfg: PPOConfig, steps: int | None) -> int:
 class StatePolicy:
     """A trained state PPO actor: deterministic (mean) actions from numpy state observations."""
 
-    def __init__(self, actor, control: str, obs_dim: int, action_dim: int) -> None:
+    def __init__(
+        self, actor, control: str, obs_dim: int, action_dim: int, actor_inputs: str = "state"
+    ) -> None:
         self.actor = actor.eval()
         self.control = control
         self.obs_dim = obs_dim
         self.action_dim = action_dim
+        self.groups = observation_groups(actor_inputs)
 
     def reset(self, env_ids=None) -> None:
         del env_ids  # a feed-forward policy has no memory
@@ -398,9 +440,7 @@ class StatePolicy:
         torch = _torch()
         obs = state_batch(obs, self.obs_dim)
         with torch.no_grad():
-            td = TensorDict(
-                {"policy": torch.as_tensor(obs, dtype=torch.float32)}, batch_size=[len(obs)]
-            )
+            td = TensorDict(tensor_groups(self.groups(obs)), batch_size=[len(obs)])
             actions = self.actor(td).numpy().astype(np.float64)
         return np.clip(actions, -1.0, 1.0)
 
@@ -423,9 +463,14 @@ def load_state_policy(run: dict, checkpoint: Path) -> StatePolicy:
     from wirecraft.rl.config import config_from_dict
 
     torch = _torch()
+    from wirecraft.rl.features import actor_input_dim
+
     cfg = config_from_dict("ppo", run["config"])
     obs_dim, action_dim = int(run["obs"]["dim"]), int(run["action_dim"])
-    actor = build_actor(cfg, obs_dim, action_dim)
+    inputs = cfg.actor_inputs
+    actor = build_actor(
+        cfg, actor_input_dim(inputs, obs_dim), action_dim, groups=actor_groups(inputs)
+    )
     saved = torch.load(checkpoint, map_location="cpu", weights_only=False)
     actor.load_state_dict(saved["actor_state_dict"])
-    return StatePolicy(actor, run["control"], obs_dim, action_dim)
+    return StatePolicy(actor, run["control"], obs_dim, action_dim, inputs)

@@ -146,9 +146,15 @@ def _check_expert_control(algorithm: str, task: str, env_kwargs: dict, cfg) -> N
     uses_expert = algorithm == "sacfd" or (
         algorithm == "ppo" and (cfg.bc_init_transitions or cfg.expert_starts)
     )
+    control = env_kwargs.get("control") or TASKS.get(task).default_control
     if uses_expert:
-        control = env_kwargs.get("control") or TASKS.get(task).default_control
         expert_for(task, control, f"{algorithm} runs' expert data")
+    if algorithm == "ppo" and cfg.dagger_init_iterations:
+        from wirecraft.rl.dagger import check_dagger_task
+
+        check_dagger_task(task, control)
+    if algorithm == "ppo" and cfg.actor_inputs != "state" and task != "insertion":
+        raise ValueError(f"actor_inputs={cfg.actor_inputs!r} is computed from the insertion state")
 
 
 def _new_run(algorithm: str, task: str, env_kwargs: dict, cfg, run_dir: Path) -> Run:
@@ -278,7 +284,8 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
     iterations_done = int(data.get("iterations_done", 0))
     torch.manual_seed(cfg.seed + iterations_done)
     vision = data["algorithm"] == "vision-ppo"
-    obs_groups, train_cfg, bc_actor = None, ppo.runner_config(cfg), None
+    obs_groups, bc_actor = ppo.observation_groups(cfg.actor_inputs), None
+    train_cfg = ppo.runner_config(cfg, actor_groups=ppo.actor_groups(cfg.actor_inputs))
     if vision:
         encoder, bc_actor = _vision_encoder(cfg, run, progress)
         from wirecraft.rl.vision import vision_observations
@@ -309,7 +316,9 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
         if checkpoint is not None:
             ppo.resume(runner, checkpoint)
         elif cfg.bc_init_transitions:
-            _behaviour_clone_init(runner, cfg, run, venv, progress)
+            _behaviour_clone_init(runner, cfg, run, venv, progress, obs_groups)
+        elif cfg.dagger_init_iterations:
+            _dagger_init(runner, cfg, run, venv, progress, obs_groups)
         elif bc_actor is not None:
             runner.alg.get_policy().load_state_dict(bc_actor.state_dict())
         total = ppo.iterations_for(cfg, steps)
@@ -327,7 +336,25 @@ def _expert_collection(cfg, progress: bool) -> dict:
     return {"num_envs": min(cfg.num_envs, 32), "threads": cfg.threads, "progress": progress}
 
 
-def _behaviour_clone_init(runner, cfg, run: Run, venv, progress: bool) -> None:
+def _dagger_init(runner, cfg, run: Run, venv, progress: bool, obs_groups) -> None:
+    from wirecraft.rl.dagger import dagger_init
+
+    history = dagger_init(
+        runner,
+        venv,
+        iterations=cfg.dagger_init_iterations,
+        epochs=cfg.dagger_init_epochs,
+        gamma=cfg.gamma,
+        reward_scale=cfg.reward_scale,
+        seed=cfg.seed + 15_485_863,  # not the training episodes' seeds
+        obs_groups=obs_groups,
+        progress=progress,
+    )
+    run.data["dagger_init"] = history
+    run.save()
+
+
+def _behaviour_clone_init(runner, cfg, run: Run, venv, progress: bool, obs_groups) -> None:
     from wirecraft.rl import ppo
     from wirecraft.rl.sacfd import collect_demonstrations
 
@@ -348,6 +375,7 @@ def _behaviour_clone_init(runner, cfg, run: Run, venv, progress: bool) -> None:
         epochs=cfg.bc_init_epochs,
         seed=cfg.seed,
         progress=progress,
+        obs_groups=obs_groups,
     )
     run.data["bc_init"] = {"transitions": len(demos["actions"]), "final_losses": losses}
     run.save()

@@ -1,0 +1,150 @@
+"""A DAgger warm start of state PPO from the reactive insertion expert (``--set
+dagger_init_iterations=K``).
+
+Behaviour cloning of an expert's own episodes fails closed loop: the clone drifts into states the
+expert never visited (docs/baselines.md).  DAgger (Ross et al., 2011) labels the learner's own
+states instead.  Before PPO's first iteration, wave ``k`` (k = 0 ... K-1) runs one episode in
+every training environment, each step executing the expert's action with probability 0.5 ** k,
+else the actor's mean; ``ReactiveInsertionExpert``, whose action is a function of the state
+alone, labels every state; the actor is then fitted to all labels so far (warm start).  A last
+wave runs the actor alone (its success rates are the warm start's own figures), is labelled too,
+and the final fit also fits the critic to the discounted returns of all the waves, so that PPO's
+first updates meet a value function that knows the actor's behaviour.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from tqdm import tqdm
+
+from wirecraft.experts.reactive import ReactiveInsertionExpert
+
+
+def check_dagger_task(task: str, control: str) -> None:
+    """A ValueError unless the reactive expert can label ``task`` under ``control``."""
+    if task != "insertion" or control != "cartesian":
+        raise ValueError(
+            "dagger_init_iterations needs the insertion task with control='cartesian' (the "
+            f"reactive expert's), got task={task!r}, control={control!r}"
+        )
+
+
+def discounted_returns(rewards: np.ndarray, dones: np.ndarray, gamma: float) -> np.ndarray:
+    """(T, N) returns of (T, N) rewards; an episode ends where ``dones`` (nothing bootstrapped
+    past the end of the wave)."""
+    returns = np.zeros_like(rewards, dtype=float)
+    running = np.zeros(rewards.shape[1])
+    for t in range(len(rewards) - 1, -1, -1):
+        running = rewards[t] + gamma * running * (1.0 - dones[t])
+        returns[t] = running
+    return returns
+
+
+def actor_means(actor, obs_groups: Callable, obs: np.ndarray) -> np.ndarray:
+    """The actor's deterministic (mean) actions on numpy states."""
+    import torch
+    from tensordict import TensorDict
+
+    from wirecraft.rl.ppo import tensor_groups
+
+    with torch.no_grad():
+        td = TensorDict(tensor_groups(obs_groups(obs)), batch_size=[len(obs)])
+        return np.clip(actor(td).numpy().astype(np.float64), -1.0, 1.0)
+
+
+def run_wave(venv, expert, actor, obs_groups, beta: float, seed: int, rng) -> dict:
+    """One episode in every environment of ``venv``: the expert's action with probability
+    ``beta``, else the actor's; returns the states, labels, (T, N) rewards and dones, and the
+    wave's reach / insert rates (at some step)."""
+    obs, _ = venv.reset(seed=seed)
+    n, steps = venv.num_envs, int(venv.unwrapped.envs[0].max_steps)
+    states, labels, rewards, dones = [], [], [], []
+    reach, insert = np.zeros(n, bool), np.zeros(n, bool)
+    for _ in range(steps):
+        label = expert.act(obs)
+        action = label.copy()
+        if beta < 1.0:
+            learner = rng.random(n) >= beta
+            action[learner] = actor_means(actor, obs_groups, obs[learner])
+        states.append(obs.copy())
+        labels.append(label)
+        obs, reward, terminated, truncated, info = venv.step(action)
+        rewards.append(np.asarray(reward, float))
+        dones.append(np.asarray(terminated | truncated, float))
+        reach |= np.asarray(info["reach_success"], bool)
+        insert |= np.asarray(info["insert_success"], bool)
+    return {
+        "states": np.stack(states),
+        "labels": np.stack(labels),
+        "rewards": np.stack(rewards),
+        "dones": np.stack(dones),
+        "reach": float(reach.mean()),
+        "insert": float(insert.mean()),
+    }
+
+
+def dagger_init(
+    runner,
+    venv,
+    *,
+    iterations: int,
+    epochs: int,
+    gamma: float,
+    reward_scale: float,
+    seed: int,
+    obs_groups: Callable,
+    progress: bool = True,
+) -> list[dict]:
+    """Warm-start ``runner``'s actor (and, at the end, its critic) by DAgger on ``venv`` (module
+    docstring); returns one record per wave: beta, the wave's reach / insert rates, the labels
+    so far and the fit's last actor loss."""
+    import torch
+
+    from wirecraft.rl.ppo import behaviour_clone_init
+
+    expert = ReactiveInsertionExpert(venv)
+    actor = runner.alg.actor
+    rng = np.random.default_rng(seed)
+    states, labels, returns, history = [], [], [], []
+    waves = [0.5**k for k in range(iterations)] + [0.0]  # the last: the actor alone
+    for k, beta in enumerate(tqdm(waves, desc="DAgger warm start", disable=not progress)):
+        actor.eval()
+        wave = run_wave(venv, expert, actor, obs_groups, beta, seed + k, rng)
+        states.append(wave["states"].reshape(-1, wave["states"].shape[-1]))
+        labels.append(wave["labels"].reshape(-1, wave["labels"].shape[-1]))
+        scaled = wave["rewards"] * reward_scale
+        returns.append(discounted_returns(scaled, wave["dones"], gamma).reshape(-1))
+        last = k == len(waves) - 1
+        demos = {
+            "observations": torch.as_tensor(np.concatenate(states), dtype=torch.float32),
+            "actions": torch.as_tensor(np.concatenate(labels), dtype=torch.float32),
+            "returns": torch.as_tensor(np.concatenate(returns), dtype=torch.float32)[:, None],
+        }
+        losses = behaviour_clone_init(
+            runner,
+            demos,
+            episode_steps=1,
+            gamma=gamma,
+            epochs=epochs,
+            seed=seed + k,
+            batch_size=1024,
+            progress=False,
+            obs_groups=obs_groups,
+            fit_critic=last,
+        )
+        record = {
+            "wave": k,
+            "beta": beta,
+            "reach": wave["reach"],
+            "insert": wave["insert"],
+            "labels": len(demos["actions"]),
+            "actor_loss": losses["actor"],
+        }
+        if last:
+            record["critic_loss"] = losses["critic"]
+        history.append(record)
+        if progress:
+            tqdm.write(f"DAgger wave {k}: {record}")
+    return history
