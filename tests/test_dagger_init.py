@@ -1,0 +1,162 @@
+"""State PPO's goal-relative actor inputs and DAgger warm start (rl/features.py, rl/dagger.py):
+the features against MuJoCo's own frames, returns against their closed form, a wave executing
+the actor's actions (not the labels), a real warm start whose expert wave seats the plug and
+whose saved actor is the loaded policy, and bad settings refused before anything is written."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import wirecraft
+from wirecraft.rl import RUN_FILE, load_policy, train
+from wirecraft.rl.config import PPOConfig, VisionPPOConfig
+from wirecraft.rl.dagger import discounted_returns, run_wave
+from wirecraft.rl.features import FINE_SCALES, actor_input_dim, relative_features
+
+
+def _world(env):
+    """(TCP position, TCP rotation, plug position, plug rotation, tip) in the world."""
+    env = env.unwrapped
+    data, task = env.data, env.task
+    tcp = env.controller.index.tcp_site
+    plug = task.assembly.plug_id
+    return (
+        data.site_xpos[tcp].copy(),
+        data.site_xmat[tcp].reshape(3, 3).copy(),
+        data.xpos[plug].copy(),
+        data.xmat[plug].reshape(3, 3).copy(),
+        data.site_xpos[task.assembly.tip_site].copy(),
+    )
+
+
+@pytest.mark.parametrize("robot", ["ur5", "panda"])
+def test_relative_features_are_the_plug_and_tip_seen_from_the_tcp(robot):
+    env = wirecraft.make("insertion", robot=robot, control="cartesian")
+    obs, _ = env.reset(seed=3)
+    for _ in range(20):  # off the home pose, turned a little
+        obs, *_ = env.step(np.array([0.5, -0.3, -0.4, 0.0, 0.0, 0.6, 0.0]))
+    state = obs[None]
+    features = relative_features(state)
+    width = state.shape[1]
+    assert features.shape == (1, actor_input_dim("relative", width))
+    np.testing.assert_array_equal(features[:, :width], state)
+    tcp, tcp_rot, plug, plug_rot, tip = _world(env)
+    # Relative quantities in the TCP's own frame do not depend on the frame the state uses.
+    plug_in_tcp = tcp_rot.T @ (plug - tcp)
+    np.testing.assert_allclose(features[0, width : width + 3], plug_in_tcp, atol=1e-6)
+    np.testing.assert_allclose(
+        features[0, width + 3 : width + 12], (tcp_rot.T @ plug_rot).ravel(), atol=1e-6
+    )
+    tip_from_tcp = features[0, width + 12 : width + 15]  # in the base frame: compare lengths
+    assert abs(np.linalg.norm(tip_from_tcp) - np.linalg.norm(tip - tcp)) < 1e-6
+    fine = features[0, width + 15 :]
+    for k, scale in enumerate(FINE_SCALES):
+        np.testing.assert_allclose(fine[9 * k : 9 * k + 3], np.tanh(plug_in_tcp / scale), atol=1e-4)
+    env.close()
+
+
+def test_relative_features_refuse_a_state_that_is_not_an_insertion_state():
+    with pytest.raises(ValueError, match="insertion state width"):
+        relative_features(np.zeros((2, 43)))
+
+
+def test_discounted_returns_restart_where_an_episode_ends():
+    rewards = np.ones((4, 2))
+    dones = np.zeros((4, 2))
+    dones[1, 1] = 1.0  # the second environment's first episode ends after step 1
+    returns = discounted_returns(rewards, dones, 0.5)
+    np.testing.assert_allclose(returns[:, 0], [1.875, 1.75, 1.5, 1.0])
+    np.testing.assert_allclose(returns[:, 1], [1.5, 1.0, 1.5, 1.0])
+
+
+def test_a_wave_without_the_expert_executes_the_actor_and_still_labels_every_state():
+    import torch
+
+    from wirecraft.experts.reactive import ReactiveInsertionExpert
+    from wirecraft.rl.ppo import state_observations
+
+    def still_actor(td):  # holds the arm where it is (zero Cartesian moves), pads open
+        action = torch.zeros(len(td["policy"]), 7)
+        action[:, 6] = -1.0
+        return action
+
+    venv = wirecraft.make_vec("insertion", 2, threads=1, control="cartesian", episode_seconds=0.5)
+    expert = ReactiveInsertionExpert(venv)
+    wave = run_wave(venv, expert, still_actor, state_observations, 0.0, 5, np.random.default_rng())
+    venv.close()
+    steps = wave["states"].shape[0]
+    assert wave["labels"].shape == (steps, 2, 7)
+    tcp = wave["states"][:, :, expert.layout.tcp_pos]
+    assert np.abs(tcp - tcp[0]).max() < 0.002  # the actor held still...
+    assert np.abs(wave["labels"][:, :, :3]).max() > 0.5  # ...while the expert asked to move
+    assert wave["insert"] == 0.0
+
+
+def test_dagger_warm_start_trains_the_actor_on_relative_inputs_and_loads_back(tmp_path):
+    import torch
+
+    run_dir = tmp_path / "ppo"
+    overrides = {
+        "num_envs": 2,
+        "num_steps_per_env": 8,
+        "actor_hidden_dims": (32, 16),
+        "critic_hidden_dims": (16,),
+        "num_mini_batches": 2,
+        "num_learning_epochs": 1,
+        "threads": 1,
+        "actor_inputs": "relative",
+        "dagger_init_iterations": 1,
+        "dagger_init_epochs": 2,
+        "init_std": 0.05,
+    }
+    train("ppo", "insertion", {}, run_dir, 16, overrides=overrides, progress=False)
+    run = json.loads((run_dir / RUN_FILE).read_text())
+    first, alone = run["dagger_init"]
+    assert (first["beta"], alone["beta"]) == (1.0, 0.0)
+    assert first["insert"] == 1.0  # the expert's own wave: the task's insert_success, both envs
+    assert (first["labels"], alone["labels"]) == (960, 1920)  # 480 steps x 2 envs per wave
+    assert np.isfinite([first["actor_loss"], alone["actor_loss"], alone["critic_loss"]]).all()
+
+    # the loaded policy computes the relative inputs itself: its action is the saved actor's
+    venv = wirecraft.make_vec("insertion", 2, threads=1, control="cartesian")
+    obs, _ = venv.reset(seed=4)
+    policy = load_policy(run_dir, venv)
+    venv.close()
+    saved = torch.load(run_dir / run["latest_checkpoint"], weights_only=False)
+    state = saved["actor_state_dict"]
+    mean, std = state["obs_normalizer._mean"].double().numpy(), state["obs_normalizer._std"]
+    x = (relative_features(obs) - mean) / (std.double().numpy() + 1e-2)
+    for i in (0, 2):
+        w, b = state[f"mlp.{i}.weight"].double().numpy(), state[f"mlp.{i}.bias"].double().numpy()
+        x = x @ w.T + b
+        x = np.where(x > 0, x, np.expm1(np.minimum(x, 0)))
+    w, b = state["mlp.4.weight"].double().numpy(), state["mlp.4.bias"].double().numpy()
+    np.testing.assert_allclose(policy.act(obs), np.clip(x @ w.T + b, -1, 1), atol=1e-5)
+
+
+def test_bad_warm_start_settings_are_refused_before_anything_is_written(tmp_path):
+    with pytest.raises(ValueError, match="actor_inputs"):
+        PPOConfig(actor_inputs="pixels")
+    with pytest.raises(ValueError, match="dagger_init_iterations"):
+        PPOConfig(dagger_init_iterations=-1)
+    with pytest.raises(ValueError, match="dagger_init_epochs"):
+        PPOConfig(dagger_init_epochs=0)
+    with pytest.raises(ValueError, match="choose"):
+        PPOConfig(dagger_init_iterations=2, bc_init_transitions=100)
+    with pytest.raises(ValueError, match="state PPO"):
+        VisionPPOConfig(dagger_init_iterations=1)
+    with pytest.raises(ValueError, match="state PPO"):
+        VisionPPOConfig(actor_inputs="relative")
+    run_dir = tmp_path / "run"
+    cases = [
+        ("routing", {}, {"dagger_init_iterations": 1}, "insertion task"),
+        ("insertion", {"control": "joint"}, {"dagger_init_iterations": 1}, "cartesian"),
+        ("seating", {}, {"actor_inputs": "relative"}, "insertion state"),
+    ]
+    for task, env_kwargs, overrides, message in cases:
+        with pytest.raises(ValueError, match=message):
+            train("ppo", task, env_kwargs, run_dir, 16, overrides=overrides, progress=False)
+        assert not run_dir.exists()
