@@ -47,14 +47,18 @@ def plot(rows, out: Path, title: str) -> None:
         (axes[1], "wall_time_s", "wall time (h)"),
     ):
         scale = 1 / 3600 if x_key == "wall_time_s" else 1.0
-        xs = [r[x_key] * scale for r in rows]
         for key, name in CURVES:
-            ax.plot(xs, [100 * r[key] for r in rows], label=name)
+            # Most logging periods end no episode (NaN): join the periods that did.
+            kept = [r for r in rows if not math.isnan(r[key])]
+            ax.plot([r[x_key] * scale for r in kept], [100 * r[key] for r in kept], ".-", label=name)
+        if x_key == "wall_time_s" and rows[0][x_key] > 0.05 * rows[-1][x_key]:
+            # A warm start (DAgger, behaviour cloning) runs before iteration 0's clock stops.
+            ax.axvspan(0, rows[0][x_key] * scale, color="0.9", label="warm start")
         ax.set_xlabel(label)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("training episodes (%)")
     axes[0].set_ylim(-2, 102)
-    axes[1].legend(loc="upper left")
+    axes[1].legend(loc="lower left")
     fig.suptitle(title)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
