@@ -50,7 +50,8 @@ def plot(rows, out: Path, title: str) -> None:
         for key, name in CURVES:
             # Most logging periods end no episode (NaN): join the periods that did.
             kept = [r for r in rows if not math.isnan(r[key])]
-            ax.plot([r[x_key] * scale for r in kept], [100 * r[key] for r in kept], ".-", label=name)
+            xs, ys = [r[x_key] * scale for r in kept], [100 * r[key] for r in kept]
+            ax.plot(xs, ys, ".-", label=name)
         if x_key == "wall_time_s" and rows[0][x_key] > 0.05 * rows[-1][x_key]:
             # A warm start (DAgger, behaviour cloning) runs before iteration 0's clock stops.
             ax.axvspan(0, rows[0][x_key] * scale, color="0.9", label="warm start")

@@ -160,3 +160,94 @@ def test_bad_warm_start_settings_are_refused_before_anything_is_written(tmp_path
         with pytest.raises(ValueError, match=message):
             train("ppo", task, env_kwargs, run_dir, 16, overrides=overrides, progress=False)
         assert not run_dir.exists()
+
+
+class _Storage:
+    def __init__(self, observations):
+        self.observations = observations
+
+
+class _StateActor:
+    """An MLP on the raw state (the ``policy`` group), as rsl-rl's actor is called."""
+
+    def __init__(self, width: int):
+        import torch
+
+        torch.manual_seed(0)
+        self.net = torch.nn.Sequential(
+            torch.nn.Linear(width, 64), torch.nn.ELU(), torch.nn.Linear(64, 7)
+        )
+
+    def __call__(self, td):
+        return self.net(td["policy"])
+
+    def parameters(self):
+        return self.net.parameters()
+
+    def train(self):
+        self.net.train()
+
+
+def test_auxiliary_dagger_pulls_the_actor_toward_the_experts_labels_after_each_update():
+    import types
+
+    import torch
+    from tensordict import TensorDict
+
+    from wirecraft.experts.reactive import ReactiveInsertionExpert
+    from wirecraft.rl.dagger import auxiliary_dagger
+
+    venv = wirecraft.make_vec("insertion", 4, threads=1, control="cartesian")
+    obs, _ = venv.reset(seed=5)
+    expert = ReactiveInsertionExpert(venv)
+    rollout = []
+    for _ in range(40):  # the expert's own path: approach, descend, grasp
+        rollout.append(obs.copy())
+        obs, *_ = venv.step(expert.act(obs))
+    states = np.stack(rollout)  # (T, N, width)
+    labels = torch.as_tensor(ReactiveInsertionExpert(venv).act(states.reshape(-1, obs.shape[1])))
+    td = TensorDict({"policy": torch.as_tensor(states, dtype=torch.float32)}, batch_size=[40, 4])
+    actor = _StateActor(obs.shape[1])
+    calls = []
+
+    def ppo_update():
+        calls.append(1)
+        return {"surrogate": 0.0}
+
+    alg = types.SimpleNamespace(actor=actor, storage=_Storage(td), update=ppo_update)
+    runner = types.SimpleNamespace(alg=alg, current_learning_iteration=0)
+
+    def error():
+        with torch.no_grad():
+            return float(torch.nn.functional.mse_loss(actor(td.flatten(0, 1)), labels.float()))
+
+    before = error()
+    with auxiliary_dagger(runner, venv, learning_rate=1e-2, decay=0.5, seed=0, batch_size=64):
+        for it in range(30):
+            runner.current_learning_iteration = it
+            losses = alg.update()
+            if it == 2:
+                assert losses["dagger_lr"] == pytest.approx(1e-2 * 0.5**2)
+        runner.current_learning_iteration = 0  # undecayed for the rest
+        for _ in range(30):
+            losses = alg.update()
+    assert alg.update is ppo_update  # restored on leaving
+    venv.close()
+    assert len(calls) == 60 and losses["surrogate"] == 0.0  # PPO's update ran every time
+    assert np.isfinite(losses["dagger"])
+    assert error() < 0.2 * before, (before, error())
+
+
+def test_bad_auxiliary_dagger_settings_are_refused(tmp_path):
+    for bad in (-1e-4, float("nan")):
+        with pytest.raises(ValueError, match="dagger_aux_lr"):
+            PPOConfig(dagger_aux_lr=bad)
+    for bad in (0.0, 1.5):
+        with pytest.raises(ValueError, match="dagger_aux_decay"):
+            PPOConfig(dagger_aux_decay=bad)
+    with pytest.raises(ValueError, match="state PPO"):
+        VisionPPOConfig(dagger_aux_lr=1e-4)
+    run_dir = tmp_path / "run"
+    with pytest.raises(ValueError, match="insertion task"):
+        train("ppo", "routing", {}, run_dir, 16, overrides={"dagger_aux_lr": 1e-4}, progress=False)
+    assert not run_dir.exists()

@@ -103,6 +103,11 @@ class PPOConfig:
     # critic is fitted to the waves' returns.  0: off.
     dagger_init_iterations: int = 0
     dagger_init_epochs: int = 15
+    # Not in the reference: during PPO, after each update, the reactive insertion expert labels
+    # the rollout and the actor takes one regression pass toward the labels (its own Adam at
+    # dagger_aux_lr * dagger_aux_decay ** iteration; rl/dagger.py auxiliary_dagger).  0: off.
+    dagger_aux_lr: float = 0.0
+    dagger_aux_decay: float = 1.0
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -112,6 +117,12 @@ class PPOConfig:
             )
         _int_at_least(owner, "dagger_init_iterations", self.dagger_init_iterations, 0)
         _int_at_least(owner, "dagger_init_epochs", self.dagger_init_epochs, 1)
+        if not (math.isfinite(self.dagger_aux_lr) and self.dagger_aux_lr >= 0):
+            raise ValueError(f"{owner}: dagger_aux_lr must be >= 0, got {self.dagger_aux_lr!r}")
+        if not (math.isfinite(self.dagger_aux_decay) and 0 < self.dagger_aux_decay <= 1):
+            raise ValueError(
+                f"{owner}: dagger_aux_decay must be in (0, 1], got {self.dagger_aux_decay!r}"
+            )
         if self.dagger_init_iterations and self.bc_init_transitions:
             raise ValueError(f"{owner}: choose dagger_init_iterations or bc_init_transitions")
         _int_at_least(owner, "bc_init_transitions", self.bc_init_transitions, 0)
@@ -192,7 +203,12 @@ class VisionPPOConfig(PPOConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         owner = type(self).__name__
-        for name in ("expert_starts", "bc_init_transitions", "dagger_init_iterations"):
+        for name in (
+            "expert_starts",
+            "bc_init_transitions",
+            "dagger_init_iterations",
+            "dagger_aux_lr",
+        ):
             if getattr(self, name):  # state PPO's; ours clones itself
                 raise ValueError(f"{owner}: {name} is for state PPO; it must be 0 here")
         if self.actor_inputs != "state":

@@ -10,10 +10,18 @@ alone, labels every state; the actor is then fitted to all labels so far (warm s
 wave runs the actor alone (its success rates are the warm start's own figures), is labelled too,
 and the final fit also fits the critic to the discounted returns of all the waves, so that PPO's
 first updates meet a value function that knows the actor's behaviour.
+
+PPO from such a start keeps the expert's success for a few dozen iterations and then loses it
+(docs/baselines.md).  ``auxiliary_dagger`` (``--set dagger_aux_lr=...``) keeps labelling during
+PPO: after every update, the expert labels that iteration's rollout states and the actor takes
+one pass of regression steps toward the labels, with its own optimiser, at a learning rate that
+decays by ``dagger_aux_decay`` per iteration (an annealed imitation term, as SACfD's
+behaviour-cloning loss).
 """
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 
 import numpy as np
@@ -26,8 +34,8 @@ def check_dagger_task(task: str, control: str) -> None:
     """A ValueError unless the reactive expert can label ``task`` under ``control``."""
     if task != "insertion" or control != "cartesian":
         raise ValueError(
-            "dagger_init_iterations needs the insertion task with control='cartesian' (the "
-            f"reactive expert's), got task={task!r}, control={control!r}"
+            "dagger_init_iterations and dagger_aux_lr need the insertion task with "
+            f"control='cartesian' (the reactive expert's), got task={task!r}, control={control!r}"
         )
 
 
@@ -148,3 +156,47 @@ def dagger_init(
         if progress:
             tqdm.write(f"DAgger wave {k}: {record}")
     return history
+
+
+@contextlib.contextmanager
+def auxiliary_dagger(
+    runner, venv, *, learning_rate: float, decay: float, seed: int, batch_size: int = 4096
+):
+    """Within: each PPO update of ``runner`` is followed by one DAgger pass of the actor over
+    the update's rollout (module docstring); the pass's mean squared error to the labels is
+    logged with the update's losses as ``Loss/dagger`` (and its learning rate as
+    ``Loss/dagger_lr``)."""
+    import torch
+
+    expert = ReactiveInsertionExpert(venv)
+    alg = runner.alg
+    optimizer = torch.optim.Adam(alg.actor.parameters(), lr=learning_rate)
+    generator = torch.Generator().manual_seed(seed)
+    update = alg.update
+
+    def update_then_imitate(*args, **kwargs):
+        # the update clears the storage: take the rollout first
+        observations = alg.storage.observations.flatten(0, 1).clone()
+        losses = update(*args, **kwargs)
+        states = observations["policy"].numpy().astype(np.float64)
+        labels = torch.as_tensor(expert.act(states), dtype=torch.float32)
+        lr = learning_rate * decay ** max(runner.current_learning_iteration, 0)
+        for group in optimizer.param_groups:
+            group["lr"] = lr
+        alg.actor.train()
+        order = torch.randperm(len(labels), generator=generator)
+        total, batches = 0.0, 0
+        for start in range(0, len(labels), batch_size):
+            idx = order[start : start + batch_size]
+            loss = torch.nn.functional.mse_loss(alg.actor(observations[idx]), labels[idx])
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            total, batches = total + float(loss.detach()), batches + 1
+        return {**losses, "dagger": total / batches, "dagger_lr": lr}
+
+    alg.update = update_then_imitate
+    try:
+        yield
+    finally:
+        alg.update = update

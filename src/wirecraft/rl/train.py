@@ -149,7 +149,7 @@ def _check_expert_control(algorithm: str, task: str, env_kwargs: dict, cfg) -> N
     control = env_kwargs.get("control") or TASKS.get(task).default_control
     if uses_expert:
         expert_for(task, control, f"{algorithm} runs' expert data")
-    if algorithm == "ppo" and cfg.dagger_init_iterations:
+    if algorithm == "ppo" and (cfg.dagger_init_iterations or cfg.dagger_aux_lr):
         from wirecraft.rl.dagger import check_dagger_task
 
         check_dagger_task(task, control)
@@ -325,7 +325,19 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
         # an image encoder's forward pass does want its threads
         threads = contextlib.nullcontext() if vision else ppo.single_threaded_rollouts(runner)
         quiet = contextlib.nullcontext() if progress else contextlib.redirect_stdout(io.StringIO())
-        with threads, quiet:
+        imitation = contextlib.nullcontext()
+        if cfg.dagger_aux_lr:
+            from wirecraft.rl.dagger import auxiliary_dagger
+
+            imitation = auxiliary_dagger(
+                runner,
+                venv,
+                learning_rate=cfg.dagger_aux_lr,
+                decay=cfg.dagger_aux_decay,
+                seed=cfg.seed + iterations_done,
+            )
+        # the imitation pass inside the thread switch: it runs with the update's threads
+        with imitation, threads, quiet:
             ppo.learn(runner, total)
     finally:
         venv.close()
