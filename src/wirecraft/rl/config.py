@@ -117,12 +117,9 @@ class PPOConfig:
             )
         _int_at_least(owner, "dagger_init_iterations", self.dagger_init_iterations, 0)
         _int_at_least(owner, "dagger_init_epochs", self.dagger_init_epochs, 1)
-        if not (math.isfinite(self.dagger_aux_lr) and self.dagger_aux_lr >= 0):
-            raise ValueError(f"{owner}: dagger_aux_lr must be >= 0, got {self.dagger_aux_lr!r}")
-        if not (math.isfinite(self.dagger_aux_decay) and 0 < self.dagger_aux_decay <= 1):
-            raise ValueError(
-                f"{owner}: dagger_aux_decay must be in (0, 1], got {self.dagger_aux_decay!r}"
-            )
+        _non_negative(owner, "dagger_aux_lr", self.dagger_aux_lr)
+        _positive(owner, "dagger_aux_decay", self.dagger_aux_decay)  # with the next: (0, 1]
+        _fraction(owner, "dagger_aux_decay", self.dagger_aux_decay)
         if self.dagger_init_iterations and self.bc_init_transitions:
             raise ValueError(f"{owner}: choose dagger_init_iterations or bc_init_transitions")
         _int_at_least(owner, "bc_init_transitions", self.bc_init_transitions, 0)
