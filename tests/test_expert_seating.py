@@ -263,3 +263,57 @@ def test_press_passes_follow_their_directions():
 def test_press_directions_are_checked(directions):
     with pytest.raises(ValueError, match="press_directions"):
         SeatingExpertConfig(press_directions=directions)
+
+
+def test_later_pass_covers_only_the_raised_stretch(monkeypatch):
+    """With a wire lying on the channel floor except for a 10 mm bump over 150-220 mm of arc,
+    the expert's check calls for pressing and the next pass runs from ``press_lead_in`` before
+    the bump to ``press_lead_out`` past it; the first pass always covers the whole channel, and
+    a wire resting everywhere calls for none."""
+    env = wirecraft.make("seating", channel="curved", control=SeatingExpert.CONTROL)
+    expert = SeatingExpert(env)
+    env.reset(seed=0)
+    expert.reset()
+    u = env.unwrapped
+    cfg = expert.config
+    radius = u.task.assembly.wire.config.radius
+    resting = channel_path(u.task, radius)[1:]  # the centre line, a resting wire's centre
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(resting, axis=0), axis=1))])
+    monkeypatch.setattr(u, "wire_points", lambda: resting.copy())
+    assert not expert._needs_pressing(0)
+
+    bumped = resting.copy()
+    bump = (arc >= 0.15) & (arc <= 0.22)
+    bumped[bump, 2] += 0.010
+    monkeypatch.setattr(u, "wire_points", lambda: bumped.copy())
+    full = expert._press_span(0)
+    assert expert._needs_pressing(0)
+    assert expert._press_span(0) == pytest.approx(full)  # still the first pass
+    expert.press_count[0] = 1
+    start, stop = expert._press_span(0)
+    # The path samples lie ~2-3 mm apart; the bump's first and last points are inner points.
+    assert start == pytest.approx(0.15 - cfg.press_lead_in, abs=0.004)
+    assert stop == pytest.approx(0.22 + cfg.press_lead_out, abs=0.004)
+    assert full[0] <= start < stop <= full[1]
+
+
+def test_place_ends_when_the_tcp_stops():
+    """The place ends on its own once the TCP has stayed within ``place_stall_distance`` for
+    ``place_stall_steps`` steps (a plug resting on the board cannot go lower), not before,
+    and not while the TCP still moves."""
+    env = wirecraft.make("seating", channel="curved", control=SeatingExpert.CONTROL)
+    expert = SeatingExpert(env)
+    env.reset(seed=0)
+    expert.reset()
+    cfg = expert.config
+    tcp = np.array([0.3, 0.0, 0.01])
+    verdicts = []
+    for k in range(cfg.place_stall_steps + 1):
+        expert.fsm.steps[0] = k
+        verdicts.append(expert._place_stalled(0, tcp + [0.0, 0.0, 0.00005 * k]))  # 0.05 mm a step
+    assert verdicts[:-1] == [None] * cfg.place_stall_steps and verdicts[-1] is True
+    moving = []
+    for k in range(3 * cfg.place_stall_steps):
+        expert.fsm.steps[0] = k
+        moving.append(expert._place_stalled(0, tcp + [0.0, 0.0, 0.002 * k]))  # 2 mm a step
+    assert moving == [None] * len(moving)

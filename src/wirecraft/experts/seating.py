@@ -107,6 +107,11 @@ class SeatingExpertConfig:
     lay_speed: float = 0.002  # m per step along the path (before the slow-down)
     lay_slowdown: tuple[float, float] = (1.0, 1.6)  # per-episode lay time factor (diversity)
     place_speed: float = 0.001  # m per step
+    # The place ends once the TCP has moved less than place_stall_distance for
+    # place_stall_steps: a plug that rests on the board cannot go lower, and waiting out the
+    # timeout cost ~45 of the 480 steps, which the pressing pass then lacked.
+    place_stall_distance: float = 0.0005  # m
+    place_stall_steps: int = 8
     retreat: float = 0.03  # m straight up after releasing
     press_from: float = 0.03  # m of path arc (from the entry) where the pressing pass starts
     press_clearance: float = 0.0015  # m: pad bottom above the wall tops where it cannot fit
@@ -135,6 +140,11 @@ class SeatingExpertConfig:
     # Direction of each pressing pass (+1: from the entry towards the end, -1: back from the
     # end); a pass starts only while a wire point still rides high.
     press_directions: tuple[int, ...] = (1, 1)
+    # A pass after the first covers only the stretch where the wire still rides high, from
+    # press_lead_in of arc before its first raised point to press_lead_out past its last (a
+    # whole second pass rarely fitted in the episode); None: every pass covers the channel.
+    press_lead_in: float | None = 0.04  # m of arc
+    press_lead_out: float = 0.02  # m of arc
     max_grasp_retries: int = 2
     seed: int = 0  # diversity (settle delay, lay slow-down)
 
@@ -191,6 +201,10 @@ class SeatingExpert(ScriptedExpert):
         self.lay_arc = np.zeros(self.num_envs)  # arc of the channel the plug has been laid to
         self.press_arc = np.zeros(self.num_envs)  # arc the pressing pad has reached
         self.press_count = np.zeros(self.num_envs, int)  # pressing passes started
+        # arc span (from, to) of the raised wire a later pass covers (NaN: the whole channel)
+        self.raised_span = np.full((self.num_envs, 2), np.nan)
+        self.still_from = np.zeros((self.num_envs, 3))  # TCP where it last moved (base frame)
+        self.still_steps = np.zeros(self.num_envs, int)  # steps since it moved from there
         self._profiles: list = [None] * self.num_envs
 
     def _reset_state(self, mask) -> None:
@@ -199,6 +213,8 @@ class SeatingExpert(ScriptedExpert):
         self.lay_arc[mask] = 0.0
         self.press_arc[mask] = 0.0
         self.press_count[mask] = 0
+        self.raised_span[mask] = np.nan
+        self.still_steps[mask] = 0
         for i in np.flatnonzero(mask):
             self._profiles[i] = None
         self.settle_needed[mask] = cfg.settle_steps + self.rng.integers(
@@ -318,7 +334,7 @@ class SeatingExpert(ScriptedExpert):
             return point + offset, rot, 2 * cfg.lay_speed, 1.0, bool(frac >= 1.0)
         if name == "place":
             point = self._path_point(i, arc[-1], seated)
-            return point + offset, rot, cfg.place_speed, 1.0, None
+            return point + offset, rot, cfg.place_speed, 1.0, self._place_stalled(i, tcp)
         hold = fsm.get("hold_pos")[i]
         released = self._open_command(i, cfg.release_open)
         if name == "release":
@@ -360,6 +376,19 @@ class SeatingExpert(ScriptedExpert):
         goal = hold + (cfg.retreat + cfg.final_retreat) * up
         return goal, None, cfg.descend_speed, self._open_command(i, gap), None
 
+    def _place_stalled(self, i, tcp) -> bool | None:
+        """True once the TCP has stayed within ``place_stall_distance`` for
+        ``place_stall_steps`` steps of the place; None otherwise (the pose and dwell decide)."""
+        cfg = self.config
+        if self.fsm.steps[i] == 0 or np.linalg.norm(tcp - self.still_from[i]) > (
+            cfg.place_stall_distance
+        ):
+            self.still_from[i] = tcp
+            self.still_steps[i] = 0
+            return None
+        self.still_steps[i] += 1
+        return True if self.still_steps[i] >= cfg.place_stall_steps else None
+
     # -- the pressing pass ---------------------------------------------------------------------
     def _press_span(self, i) -> tuple[float, float]:
         """(start, stop) arc of the current pressing pass, in its direction."""
@@ -368,6 +397,10 @@ class SeatingExpert(ScriptedExpert):
         entry_side = cfg.press_from
         end_side = arc[-1] - self.envs[i].task.plug_lead - cfg.press_stop
         direction = cfg.press_directions[min(self.press_count[i], len(cfg.press_directions) - 1)]
+        raised = self.raised_span[i]
+        if self.press_count[i] and cfg.press_lead_in is not None and not np.isnan(raised).any():
+            entry_side = max(entry_side, min(raised[0] - cfg.press_lead_in, end_side))
+            end_side = min(end_side, max(raised[1] + cfg.press_lead_out, entry_side))
         return (entry_side, end_side) if direction > 0 else (end_side, entry_side)
 
     def _start_rot(self, i) -> np.ndarray:
@@ -546,15 +579,23 @@ class SeatingExpert(ScriptedExpert):
         """Whether any inner point of the wire short of the channel's end rides higher than
         ``press_needed`` above a wire resting on the channel floor (the expert's own check;
         the success flag is not read).  Past the end the wire rises to the plug's exit
-        anyway: no pass can lower it there."""
+        anyway: no pass can lower it there.  Keeps the arc span of those points along the
+        path (``raised_span``) for a later pass."""
         env = self.envs[i]
         placed = env.task.placed
-        points = placed.to_local(env.wire_points())[1:-1]
+        world = env.wire_points()[1:-1]
+        points = placed.to_local(world)
         start, heading = placed.config.segment_frames()[-1]
         along = (points[:, :2] - start) @ np.array([math.cos(heading), math.sin(heading)])
         short = along < placed.config.segment_length
         rest = placed.config.floor + env.task.assembly.wire.config.radius
-        return bool(np.any(short & (points[:, 2] > rest + self.config.press_needed)))
+        raised = short & (points[:, 2] > rest + self.config.press_needed)
+        if not raised.any():
+            return False
+        path, arc = self._path(i)
+        nearest = np.linalg.norm(world[raised, None, :2] - path[None, :, :2], axis=2).argmin(1)
+        self.raised_span[i] = arc[nearest].min(), arc[nearest].max()
+        return True
 
     def _take_grasp_goal(self, i) -> None:
         """Grasp at the middle of the plug's tail (its ``grasp_site``), TCP ``grasp_height``
