@@ -30,11 +30,14 @@ randomized delay: the gentle, delayed grasp) -> close -> lift (straight up) -> c
 to above the channel's path, ``lay_from`` metres of arc before its end) -> lay (the plug follows
 the channel's centre line to ``plug_lead`` beyond its end while coming down, slowly, so the
 wire behind it drops between the walls) -> place (the wire end down to the height of a wire
-resting on the channel floor) -> release (pads ``release_open`` apart) -> retreat -> done, or,
-when a wire point still rides ``press_needed`` above resting on the floor (the expert's own
-geometric check), the pressing pass: press_approach -> press_descend -> press ->
-press_retreat, repeated (one pass per entry of ``press_directions``) while the check still
-sees a raised wire, -> done.  A grasp that does not hold after the lift sends the
+resting on the channel floor, or until the TCP stops: the plug rests on the board) -> release
+(pads ``release_open`` apart) -> retreat -> done, or, when a wire point still rides
+``press_needed`` above resting on the floor (the expert's own geometric check), the pressing
+pass: press_approach -> press_descend -> press -> press_retreat (straight up to the travel
+height), repeated (one pass per entry of ``press_directions``) while the check still sees a
+raised wire, -> done.  The first pass covers the whole channel, a later one only the raised
+stretch (``press_lead_in`` / ``press_lead_out``): the 480-step episode rarely had room for a
+second whole pass.  A grasp that does not hold after the lift sends the
 environment back to ``approach`` (at most ``max_grasp_retries`` times).
 
 Pressing pass (why: held only at the bolted clamp and the plug, the stiff wire keeps one smooth
@@ -99,7 +102,7 @@ class SeatingExpertConfig:
     lay_from: float = 0.04  # m of path arc before its end where the lay starts
     lay_height: float = 0.04  # m: wire end above the floor at the start of the lay
     place_above: float = 0.0005  # m: wire end above resting on the channel floor
-    approach_speed: float = 0.008  # m per step
+    approach_speed: float = 0.01  # m per step (the controller's own limit)
     descend_speed: float = 0.004  # m per step
     lift_speed: float = 0.004  # m per step
     carry_speed: float = 0.006  # m per step
@@ -110,7 +113,7 @@ class SeatingExpertConfig:
     # The place ends once the TCP has moved less than place_stall_distance for
     # place_stall_steps: a plug that rests on the board cannot go lower, and waiting out the
     # timeout cost ~45 of the 480 steps, which the pressing pass then lacked.
-    place_stall_distance: float = 0.0005  # m
+    place_stall_distance: float = 0.001  # m
     place_stall_steps: int = 8
     retreat: float = 0.03  # m straight up after releasing
     press_from: float = 0.03  # m of path arc (from the entry) where the pressing pass starts
@@ -187,6 +190,7 @@ class SeatingExpert(ScriptedExpert):
         ("grasp_pos", (3,)),
         ("lift_from", (3,)),
         ("hold_pos", (3,)),
+        ("press_end", (3,)),
         ("start_rot", (3, 3)),
     )
     CONTROL = "cartesian"
@@ -373,6 +377,14 @@ class SeatingExpert(ScriptedExpert):
         # wall would push into it).
         gap = cfg.press_open if self.press_count[i] or name == "press_retreat" else None
         gap = cfg.release_open if gap is None else gap
+        if name == "press_retreat":  # straight up to the travel height: another pass may follow
+            return (
+                fsm.get("press_end")[i],
+                None,
+                cfg.approach_speed,
+                self._open_command(i, gap),
+                None,
+            )
         goal = hold + (cfg.retreat + cfg.final_retreat) * up
         return goal, None, cfg.descend_speed, self._open_command(i, gap), None
 
@@ -625,6 +637,11 @@ class SeatingExpert(ScriptedExpert):
                 self.press_arc[i] = self._press_span(i)[0]
             elif left == idx("press"):
                 self.press_count[i] += 1
+                placed = self.envs[i].task.placed
+                wall_top = placed.pos[2] + placed.config.floor + placed.config.wall_height
+                rise = wall_top + cfg.press_travel - self._pad_target_world(i)[2]
+                up = self._base(i)[1].T @ UP
+                fsm.snapshots["press_end"][i] = self._tcp(i)[0] + rise * up
             elif left == idx("press_retreat"):
                 more = self.press_count[i] < len(cfg.press_directions)
                 if more and self._needs_pressing(i):
