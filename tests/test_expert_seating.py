@@ -317,3 +317,49 @@ def test_place_ends_when_the_tcp_stops():
         expert.fsm.steps[0] = k
         moving.append(expert._place_stalled(0, tcp + [0.0, 0.0, 0.002 * k]))  # 2 mm a step
     assert moving == [None] * len(moving)
+
+
+def _carry_outcome(config: SeatingExpertConfig, seed: int = 1002):
+    """(steps spent in carry, whether carry ended on its timeout) for the WidowX AI."""
+    env = wirecraft.make("seating", channel="curved", robot="wxai", control=SeatingExpert.CONTROL)
+    expert = SeatingExpert(env, config)
+    env.reset(seed=seed)
+    expert.reset()
+    steps = 0
+    for _ in range(EPISODE_STEPS):
+        was = expert.phase_names[0]
+        env.step(expert.act()[0])
+        if was == "carry":
+            steps += 1
+            if expert.phase_names[0] != "carry":
+                return steps, bool(expert.fsm.timed_out[0])
+    raise AssertionError("the carry never ended")
+
+
+def test_integral_action_lets_the_widowx_finish_its_carry():
+    """The WidowX AI's servos hold the carried plug ~5 mm off the goal (carry's tolerance is
+    4 mm): without the integral action the carry runs into its timeout, with it the pose is
+    reached well before."""
+    timeout = next(p.timeout for p in SeatingExpert.PHASES if p.name == "carry")
+    plain_steps, plain_timed_out = _carry_outcome(SeatingExpertConfig(sag_gain=0.0))
+    steps, timed_out = _carry_outcome(SeatingExpertConfig())
+    assert plain_timed_out and plain_steps == timeout
+    assert not timed_out and steps < timeout / 2
+
+
+def test_integrate_sag_acts_near_the_goal_and_is_capped():
+    from wirecraft.experts.base import integrate_sag
+
+    zero = np.zeros(3)
+    far = np.array([0.02, 0.0, 0.0])
+    assert np.array_equal(integrate_sag(zero, far, 0.5, 0.01, 0.005), zero)  # outside the window
+    near = np.array([0.004, 0.0, 0.0])
+    assert integrate_sag(zero, near, 0.5, 0.01, 0.005) == pytest.approx([0.002, 0.0, 0.0])
+    offset = zero
+    for _ in range(100):
+        offset = integrate_sag(offset, near, 0.5, 0.01, 0.005)
+    assert np.linalg.norm(offset) == pytest.approx(0.005)  # capped at the limit
+    with pytest.raises(ValueError, match="sag_gain"):
+        SeatingExpertConfig(sag_gain=1.5)
+    with pytest.raises(ValueError, match="sag_window"):
+        SeatingExpertConfig(sag_window=float("nan"))
