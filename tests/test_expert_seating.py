@@ -67,6 +67,15 @@ def channel_path(task, height: float, offset: float = 0.0) -> np.ndarray:
     return np.vstack([task.clamp_exit, world]) if offset == 0.0 else world
 
 
+def curved_expert(config: SeatingExpertConfig | None = None, seed: int = 0):
+    """A curved-channel environment reset with ``seed`` and a seating expert reset on it."""
+    env = wirecraft.make("seating", channel="curved", control=SeatingExpert.CONTROL)
+    expert = SeatingExpert(env, config)
+    env.reset(seed=seed)
+    expert.reset()
+    return env, expert
+
+
 def settle(env, steps: int):
     hold = np.zeros(env.action_space.shape)
     hold[-1] = -1.0
@@ -206,10 +215,7 @@ def test_press_pass_turns_no_faster_than_its_rate():
     """The pad's arc advances at most ``press_speed`` per step and its yaw changes at most
     ``press_turn_rate`` per step (the controller turns 0.01 rad per step at most), and the
     pass reaches its end within a bounded number of steps."""
-    env = wirecraft.make("seating", channel="curved", control=SeatingExpert.CONTROL)
-    expert = SeatingExpert(env)
-    env.reset(seed=0)
-    expert.reset()
+    env, expert = curved_expert()
     cfg = expert.config
     start, stop = expert._press_span(0)
     expert.press_arc[0] = start
@@ -248,10 +254,7 @@ def test_presses_the_wire_into_the_curved_channel(seed):
 def test_press_passes_follow_their_directions():
     """A pass runs from the entry side to the end side (+1) or back (-1), between the same two
     arcs; no more passes than directions."""
-    env = wirecraft.make("seating", channel="curved", control=SeatingExpert.CONTROL)
-    expert = SeatingExpert(env, SeatingExpertConfig(press_directions=(1, -1)))
-    env.reset(seed=0)
-    expert.reset()
+    env, expert = curved_expert(SeatingExpertConfig(press_directions=(1, -1)))
     _, arc = expert._path(0)
     end_side = arc[-1] - env.unwrapped.task.plug_lead - expert.config.press_stop
     assert expert._press_span(0) == pytest.approx((expert.config.press_from, end_side))
@@ -270,10 +273,7 @@ def test_later_pass_covers_only_the_raised_stretch(monkeypatch):
     the expert's check calls for pressing and the next pass runs from ``press_lead_in`` before
     the bump to ``press_lead_out`` past it; the first pass always covers the whole channel, and
     a wire resting everywhere calls for none."""
-    env = wirecraft.make("seating", channel="curved", control=SeatingExpert.CONTROL)
-    expert = SeatingExpert(env)
-    env.reset(seed=0)
-    expert.reset()
+    env, expert = curved_expert()
     u = env.unwrapped
     cfg = expert.config
     radius = u.task.assembly.wire.config.radius
@@ -301,10 +301,7 @@ def test_place_ends_when_the_tcp_stops():
     """The place ends on its own once the TCP has stayed within ``place_stall_distance`` for
     ``place_stall_steps`` steps (a plug resting on the board cannot go lower), not before,
     and not while the TCP still moves."""
-    env = wirecraft.make("seating", channel="curved", control=SeatingExpert.CONTROL)
-    expert = SeatingExpert(env)
-    env.reset(seed=0)
-    expert.reset()
+    env, expert = curved_expert()
     cfg = expert.config
     tcp = np.array([0.3, 0.0, 0.01])
     verdicts = []
