@@ -38,26 +38,6 @@ def rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(rotation_error(a, b)))
 
 
-def integrate_sag(offset, error, gain: float, window: float, limit: float) -> np.ndarray:
-    """One step of the integral action that makes up for servo sag: within ``window`` (m) of
-    the goal the aim point moves past it by ``gain`` times the remaining ``error`` (3,), the
-    accumulated ``offset`` capped at ``limit`` (m); farther away the offset stays as it was."""
-    if np.linalg.norm(error) >= window:
-        return offset
-    offset = offset + gain * np.asarray(error, float)
-    norm = np.linalg.norm(offset)
-    return offset if norm <= limit else offset * (limit / norm)
-
-
-def check_sag(owner: str, gain: float, window: float, limit: float) -> None:
-    """ValueError unless 0 <= gain <= 1 and window, limit >= 0 (NaN fails)."""
-    if not 0.0 <= gain <= 1.0:
-        raise ValueError(f"{owner}.sag_gain must be in [0, 1], got {gain}")
-    for name, value in (("sag_window", window), ("sag_limit", limit)):
-        if not value >= 0:
-            raise ValueError(f"{owner}.{name} must be >= 0, got {value}")
-
-
 @dataclass(frozen=True)
 class RobotView:
     """What every expert reads of its robot, once per control step; poses in the robot base

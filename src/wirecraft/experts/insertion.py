@@ -50,14 +50,7 @@ import mujoco
 import numpy as np
 
 from wirecraft.assets.robots.kinematics import axis_angle_to_mat, rotation_error
-from wirecraft.experts.base import (
-    RobotView,
-    ScriptedExpert,
-    check_sag,
-    integrate_sag,
-    robot_fields,
-    rotation_angle,
-)
+from wirecraft.experts.base import RobotView, ScriptedExpert, robot_fields, rotation_angle
 from wirecraft.experts.fsm import Phase
 
 UP = np.array([0.0, 0.0, 1.0])  # world
@@ -229,7 +222,15 @@ class InsertionExpertConfig:
         ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"InsertionExpertConfig.{name} must be > 0")
-        check_sag("InsertionExpertConfig", self.sag_gain, self.sag_window, self.sag_limit)
+        if not 0.0 <= self.sag_gain <= 1.0:
+            raise ValueError(
+                f"InsertionExpertConfig.sag_gain must be in [0, 1], got {self.sag_gain}"
+            )
+        for name in ("sag_window", "sag_limit"):
+            if not getattr(self, name) >= 0:  # NaN fails too
+                raise ValueError(
+                    f"InsertionExpertConfig.{name} must be >= 0, got {getattr(self, name)}"
+                )
         for name in ("force_hold", "force_backoff"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(
@@ -488,9 +489,10 @@ class InsertionExpert(ScriptedExpert):
         name = self.PHASES[self.fsm.phase[i]].name
         if name == "pre_insert":
             error = goal_pos - view.tcp_pos
-            self.sag[i] = integrate_sag(
-                self.sag[i], error, cfg.sag_gain, cfg.sag_window, cfg.sag_limit
-            )
+            if np.linalg.norm(error) < cfg.sag_window:
+                offset = self.sag[i] + cfg.sag_gain * error
+                norm = np.linalg.norm(offset)
+                self.sag[i] = offset if norm <= cfg.sag_limit else offset * (cfg.sag_limit / norm)
         elif name != "insert":
             self.sag[i] = 0.0
         return self.sag[i]

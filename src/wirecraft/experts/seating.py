@@ -80,7 +80,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wirecraft.assets.robots.kinematics import axis_angle_to_mats
-from wirecraft.experts.base import ScriptedExpert, check_sag, integrate_sag
+from wirecraft.experts.base import ScriptedExpert
 from wirecraft.experts.fsm import Phase
 
 UP = np.array([0.0, 0.0, 1.0])  # world
@@ -149,14 +149,6 @@ class SeatingExpertConfig:
     press_lead_in: float | None = 0.04  # m of arc
     press_lead_out: float = 0.02  # m of arc
     max_grasp_retries: int = 2
-    # Integral action in carry and press_approach (free moves whose pose tolerance decides):
-    # the WidowX AI's servos hold the carried plug ~5 mm off the goal, more than carry's 4 mm
-    # tolerance, and waited out its 150-step timeout.  Within sag_window of the goal the
-    # expert aims past it by the accumulated error, up to sag_limit (as the insertion expert
-    # does in pre_insert); the offset is dropped in every other phase.
-    sag_gain: float = 0.05
-    sag_window: float = 0.01  # m
-    sag_limit: float = 0.005  # m
     seed: int = 0  # diversity (settle delay, lay slow-down)
 
     def __post_init__(self) -> None:
@@ -165,7 +157,6 @@ class SeatingExpertConfig:
                 "SeatingExpertConfig.press_directions must be a non-empty tuple of +1 (entry to "
                 f"end) and -1 (end to entry), got {self.press_directions!r}"
             )
-        check_sag("SeatingExpertConfig", self.sag_gain, self.sag_window, self.sag_limit)
 
 
 PHASES = (
@@ -217,7 +208,6 @@ class SeatingExpert(ScriptedExpert):
         # arc span (from, to) of the raised wire a later pass covers (NaN: the whole channel)
         self.raised_span = np.full((self.num_envs, 2), np.nan)
         self.still_from = np.zeros((self.num_envs, 3))  # TCP where it last moved (base frame)
-        self.sag = np.zeros((self.num_envs, 3))  # m: integral offset against servo sag
         self.still_steps = np.zeros(self.num_envs, int)  # steps since it moved from there
         self._profiles: list = [None] * self.num_envs
 
@@ -228,7 +218,6 @@ class SeatingExpert(ScriptedExpert):
         self.press_arc[mask] = 0.0
         self.press_count[mask] = 0
         self.raised_span[mask] = np.nan
-        self.sag[mask] = 0.0
         self.still_steps[mask] = 0
         for i in np.flatnonzero(mask):
             self._profiles[i] = None
@@ -398,17 +387,6 @@ class SeatingExpert(ScriptedExpert):
             )
         goal = hold + (cfg.retreat + cfg.final_retreat) * up
         return goal, None, cfg.descend_speed, self._open_command(i, gap), None
-
-    def _command_offset(self, i, goal_pos, view):
-        cfg = self.config
-        if self.fsm.phases[self.fsm.phase[i]].name in ("carry", "press_approach"):
-            error = goal_pos - view.tcp_pos
-            self.sag[i] = integrate_sag(
-                self.sag[i], error, cfg.sag_gain, cfg.sag_window, cfg.sag_limit
-            )
-        else:
-            self.sag[i] = 0.0
-        return self.sag[i]
 
     def _place_stalled(self, i, tcp) -> bool | None:
         """True once the TCP has stayed within ``place_stall_distance`` for
