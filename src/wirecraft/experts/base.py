@@ -123,6 +123,8 @@ class ScriptedExpert:
         self.views: list = [None] * self.num_envs  # read_state(i) of the current control step
         self.fsm = VectorFSM(self.PHASES, self.num_envs)
         self._last_time = np.full(self.num_envs, -np.inf)  # s, to notice environment resets
+        self._still_from = np.zeros((self.num_envs, 3))  # TCP where it last moved (base frame)
+        self._still_count = np.zeros(self.num_envs, int)  # steps since it moved from there
         self._init_state()
         self.reset()
 
@@ -178,6 +180,17 @@ class ScriptedExpert:
         ctl = self.envs[i].controller
         base = ctl.base_rot_world
         return base.T @ (ctl.target_pos - ctl.base_pos_world), base.T @ ctl.target_rot
+
+    def _steps_still(self, i, tcp_pos, distance: float) -> int:
+        """Control steps the TCP (``tcp_pos``, base frame) has stayed within ``distance`` (m)
+        of where it last moved, in the current phase: 0 on the phase's first step and whenever
+        it moves farther.  Call it once per control step while the count matters."""
+        if self.fsm.steps[i] == 0 or np.linalg.norm(tcp_pos - self._still_from[i]) > distance:
+            self._still_from[i] = tcp_pos
+            self._still_count[i] = 0
+        else:
+            self._still_count[i] += 1
+        return int(self._still_count[i])
 
     # -- control loop ------------------------------------------------------------------------
     def read_state(self, i):

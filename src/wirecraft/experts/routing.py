@@ -184,8 +184,6 @@ class RoutingExpert(ScriptedExpert):
         self.wrench_before = np.zeros((self.num_envs, 3))  # N: wrist force as a push began
         self.force_steps = np.zeros(self.num_envs, int)  # steps in a row over the force limit
         self.force_stopped = np.zeros(self.num_envs, bool)
-        self.still_from = np.zeros((self.num_envs, 3))  # TCP where it last moved (base frame)
-        self.still_steps = np.zeros(self.num_envs, int)  # steps since it moved from there
 
     def _reset_state(self, mask) -> None:
         self.clip[mask] = 0
@@ -204,7 +202,6 @@ class RoutingExpert(ScriptedExpert):
         self.wrench_before[mask] = 0.0
         self.force_steps[mask] = 0
         self.force_stopped[mask] = False
-        self.still_steps[mask] = 0
 
     # -- frames ------------------------------------------------------------------------------
     def _up(self, i):
@@ -607,16 +604,9 @@ class RoutingExpert(ScriptedExpert):
         (in this phase) with the pads within the phase's turn tolerance; None otherwise (the
         pose and dwell decide)."""
         cfg, fsm, view = self.config, self.fsm, self.views[i]
-        if (
-            fsm.steps[i] == 0
-            or np.linalg.norm(view.tcp_pos - self.still_from[i]) > cfg.stall_distance
-        ):
-            self.still_from[i] = view.tcp_pos
-            self.still_steps[i] = 0
-            return None
-        self.still_steps[i] += 1
+        still = self._steps_still(i, view.tcp_pos, cfg.stall_distance)
         turned = rotation_angle(goal_rot, view.tcp_rot) <= fsm.rot_tol[fsm.phase[i]]
-        return True if turned and self.still_steps[i] >= cfg.stall_steps else None
+        return True if turned and still >= cfg.stall_steps else None
 
     def _held(self, i) -> bool:
         env = self.envs[i]

@@ -207,8 +207,6 @@ class SeatingExpert(ScriptedExpert):
         self.press_count = np.zeros(self.num_envs, int)  # pressing passes started
         # arc span (from, to) of the raised wire a later pass covers (NaN: the whole channel)
         self.raised_span = np.full((self.num_envs, 2), np.nan)
-        self.still_from = np.zeros((self.num_envs, 3))  # TCP where it last moved (base frame)
-        self.still_steps = np.zeros(self.num_envs, int)  # steps since it moved from there
         self._profiles: list = [None] * self.num_envs
 
     def _reset_state(self, mask) -> None:
@@ -218,7 +216,6 @@ class SeatingExpert(ScriptedExpert):
         self.press_arc[mask] = 0.0
         self.press_count[mask] = 0
         self.raised_span[mask] = np.nan
-        self.still_steps[mask] = 0
         for i in np.flatnonzero(mask):
             self._profiles[i] = None
         self.settle_needed[mask] = cfg.settle_steps + self.rng.integers(
@@ -392,14 +389,8 @@ class SeatingExpert(ScriptedExpert):
         """True once the TCP has stayed within ``place_stall_distance`` for
         ``place_stall_steps`` steps of the place; None otherwise (the pose and dwell decide)."""
         cfg = self.config
-        if self.fsm.steps[i] == 0 or np.linalg.norm(tcp - self.still_from[i]) > (
-            cfg.place_stall_distance
-        ):
-            self.still_from[i] = tcp
-            self.still_steps[i] = 0
-            return None
-        self.still_steps[i] += 1
-        return True if self.still_steps[i] >= cfg.place_stall_steps else None
+        still = self._steps_still(i, tcp, cfg.place_stall_distance)
+        return True if still >= cfg.place_stall_steps else None
 
     # -- the pressing pass ---------------------------------------------------------------------
     def _press_span(self, i) -> tuple[float, float]:
