@@ -269,6 +269,11 @@ class SeatingExpert(ScriptedExpert):
         point = np.array([np.interp(s, arc, world[:, k]) for k in range(3)])
         return self._to_base(i, point + height * UP)
 
+    def _wall_top(self, i) -> float:
+        """World height (m) of the channel's wall tops."""
+        placed = self.envs[i].task.placed
+        return float(placed.pos[2] + placed.config.floor + placed.config.wall_height)
+
     def _seated_height(self, i) -> float:
         """Wire-centre height above the channel floor when the wire rests on it."""
         return self.envs[i].task.assembly.wire.config.radius + self.config.place_above
@@ -353,9 +358,7 @@ class SeatingExpert(ScriptedExpert):
                 # come down only over the pass's start.
                 tcp_world = env.data.site_xpos[env.task.tcp_site]
                 if np.linalg.norm((target - tcp_world)[:2]) > cfg.press_travel_reach:
-                    wall_top = env.task.placed.pos[2] + env.task.placed.config.floor
-                    wall_top += env.task.placed.config.wall_height
-                    target[2] = max(target[2], wall_top + cfg.press_travel)
+                    target[2] = max(target[2], self._wall_top(i) + cfg.press_travel)
                 tcp, rot = self._pad_to_tcp(i, target, self._press_yaw(i, start))
                 return tcp, rot, cfg.approach_speed, opened, None
             if name == "press_descend":
@@ -628,9 +631,7 @@ class SeatingExpert(ScriptedExpert):
                 self.press_arc[i] = self._press_span(i)[0]
             elif left == idx("press"):
                 self.press_count[i] += 1
-                placed = self.envs[i].task.placed
-                wall_top = placed.pos[2] + placed.config.floor + placed.config.wall_height
-                rise = wall_top + cfg.press_travel - self._pad_target_world(i)[2]
+                rise = self._wall_top(i) + cfg.press_travel - self._pad_target_world(i)[2]
                 up = self._base(i)[1].T @ UP
                 fsm.snapshots["press_end"][i] = self._tcp(i)[0] + rise * up
             elif left == idx("press_retreat"):
