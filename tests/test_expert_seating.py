@@ -262,6 +262,22 @@ def test_press_passes_follow_their_directions():
     assert expert._press_span(0) == pytest.approx((end_side, expert.config.press_from))
 
 
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("place_stall_distance", -0.001),
+        ("place_stall_distance", float("nan")),
+        ("place_stall_steps", 0),
+        ("place_stall_steps", 2.5),
+        ("press_lead_in", -0.01),
+        ("press_lead_out", float("nan")),
+    ],
+)
+def test_bad_stall_and_lead_settings_are_refused(field, value):
+    with pytest.raises(ValueError, match=field):
+        SeatingExpertConfig(**{field: value})
+
+
 @pytest.mark.parametrize("directions", [(), (0,), (1, 2)])
 def test_press_directions_are_checked(directions):
     with pytest.raises(ValueError, match="press_directions"):

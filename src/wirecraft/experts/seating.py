@@ -79,6 +79,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wirecraft import validation
 from wirecraft.assets.robots.kinematics import axis_angle_to_mats
 from wirecraft.experts.base import ScriptedExpert
 from wirecraft.experts.fsm import Phase
@@ -145,8 +146,8 @@ class SeatingExpertConfig:
     press_directions: tuple[int, ...] = (1, 1)
     # A pass after the first covers only the stretch where the wire still rides high, from
     # press_lead_in of arc before its first raised point to press_lead_out past its last (a
-    # whole second pass rarely fitted in the episode); None: every pass covers the channel.
-    press_lead_in: float | None = 0.04  # m of arc
+    # whole second pass rarely fitted in the episode), clipped to the first pass's span.
+    press_lead_in: float = 0.04  # m of arc
     press_lead_out: float = 0.02  # m of arc
     max_grasp_retries: int = 2
     seed: int = 0  # diversity (settle delay, lay slow-down)
@@ -157,6 +158,10 @@ class SeatingExpertConfig:
                 "SeatingExpertConfig.press_directions must be a non-empty tuple of +1 (entry to "
                 f"end) and -1 (end to entry), got {self.press_directions!r}"
             )
+        owner = "SeatingExpertConfig"
+        for name in ("place_stall_distance", "press_lead_in", "press_lead_out"):
+            validation.non_negative(owner, name, getattr(self, name))
+        validation.at_least_int(owner, "place_stall_steps", self.place_stall_steps, 1)
 
 
 PHASES = (
@@ -404,7 +409,7 @@ class SeatingExpert(ScriptedExpert):
         end_side = arc[-1] - self.envs[i].task.plug_lead - cfg.press_stop
         direction = cfg.press_directions[min(self.press_count[i], len(cfg.press_directions) - 1)]
         raised = self.raised_span[i]
-        if self.press_count[i] and cfg.press_lead_in is not None and not np.isnan(raised).any():
+        if self.press_count[i] and not np.isnan(raised).any():
             entry_side = max(entry_side, min(raised[0] - cfg.press_lead_in, end_side))
             end_side = min(end_side, max(raised[1] + cfg.press_lead_out, entry_side))
         return (entry_side, end_side) if direction > 0 else (end_side, entry_side)
