@@ -271,6 +271,7 @@ def test_press_passes_follow_their_directions():
         ("place_stall_steps", 2.5),
         ("press_lead_in", -0.01),
         ("press_lead_out", float("nan")),
+        ("retreat_slide", -0.01),
     ],
 )
 def test_bad_stall_and_lead_settings_are_refused(field, value):
@@ -330,3 +331,32 @@ def test_place_ends_when_the_tcp_stops():
         expert.fsm.steps[0] = k
         moving.append(expert._place_stalled(0, tcp + [0.0, 0.0, 0.002 * k]))  # 2 mm a step
     assert moving == [None] * len(moving)
+
+
+def highest_wire_before_pressing(config: SeatingExpertConfig, seed: int) -> float:
+    """Highest inner wire point (m above the table) from the release until the first pressing
+    pass starts, less the pads' travel height (``press_travel`` above the wall tops)."""
+    env, expert = curved_expert(config, seed)
+    u = env.unwrapped
+    channel = u.task.placed
+    travel = channel.pos[2] + channel.config.floor + channel.config.wall_height
+    travel += expert.config.press_travel
+    highest = 0.0
+    for _ in range(EPISODE_STEPS):
+        env.step(expert.act()[0])
+        name = expert.phase_names[0]
+        if name == "press":
+            return highest - travel
+        if name in ("retreat", "press_approach", "press_descend"):
+            highest = max(highest, float(u.wire_points()[1:-1, 2].max()))
+    raise AssertionError("the pressing pass never started")
+
+
+@pytest.mark.slow
+def test_retreat_slides_the_pads_off_the_wire_before_rising():
+    """Curved seed 28: at the release the wire springs against a pad's end.  Rising straight
+    up, the pad lifts it by friction (to ~11 cm) and drags it along the channel; sliding
+    ``retreat_slide`` off it first, the pads travel 4 cm above the wall tops and leave the
+    wire below them (the stretch near the plug, raised by the lay, stays below ~4 cm)."""
+    assert highest_wire_before_pressing(SeatingExpertConfig(retreat_slide=0.0), 28) > 0.03
+    assert highest_wire_before_pressing(SeatingExpertConfig(), 28) < -0.01

@@ -9,7 +9,8 @@ success flags or ``fraction_inside``):
 - ``env.task``: ``placed`` (the channel of this episode: ``pos``, ``yaw`` and ``config`` with
   its ``centerline``, ``floor`` and ``wall_height``), ``plug_lead`` (wire between the
   channel's end and the plug when seated), ``tcp_site`` and
-  ``pad_contacts(model, data, held_contacts)`` (both pads on the plug);
+  ``pad_contacts(model, data, held_contacts)`` (both pads on the plug), ``pads`` and
+  ``assembly.wire_contacts`` (the contact normals between them, once, at the release's end);
 - ``env.robot``: ``tcp_pose_base(model, data)``, ``gripper_opening``, ``gripper_velocity``,
   ``max_opening``, ``pad_geom_names`` (the pressing pad's box: ``model.geom_size``,
   ``data.geom_xpos/xmat``);
@@ -31,7 +32,9 @@ to above the channel's path, ``lay_from`` metres of arc before its end) -> lay (
 the channel's centre line to ``plug_lead`` beyond its end while coming down, slowly, so the
 wire behind it drops between the walls) -> place (the wire end down to the height of a wire
 resting on the channel floor, or until the TCP stops: the plug rests on the board) -> release
-(pads ``release_open`` apart) -> retreat -> done, or, when a wire point still rides
+(pads ``release_open`` apart) -> retreat (first ``retreat_slide`` sideways, the way the wire
+pushes the pads it touches, then up: a springy wire pressed against a pad rode up with it by
+friction and was dragged along the channel) -> done, or, when a wire point still rides
 ``press_needed`` above resting on the floor (the expert's own geometric check), the pressing
 pass: press_approach -> press_descend -> press -> press_retreat (straight up to the travel
 height), repeated (one pass per entry of ``press_directions``) while the check still sees a
@@ -83,6 +86,7 @@ from wirecraft import validation
 from wirecraft.assets.robots.kinematics import axis_angle_to_mats
 from wirecraft.experts.base import ScriptedExpert
 from wirecraft.experts.fsm import Phase
+from wirecraft.sensors import contact_push
 
 UP = np.array([0.0, 0.0, 1.0])  # world
 
@@ -92,6 +96,7 @@ class SeatingExpertConfig:
     """Geometry and speeds of the seating expert (SI units; per control step where stated)."""
 
     hover: float = 0.05  # m above the grasp point where the approach ends
+    grasp_forward: float = 0.0  # EXPERIMENT: m along the plug from its tail's middle
     grasp_height: float = 0.010  # m: TCP above the table when grasping (pads 2 mm clear)
     pre_open: float = 0.04  # m: pad gap while approaching and settling
     # m: pad gap when releasing the plug (capped at the robot's): wide enough that a plug held
@@ -117,6 +122,9 @@ class SeatingExpertConfig:
     place_stall_distance: float = 0.001  # m
     place_stall_steps: int = 8
     retreat: float = 0.03  # m straight up after releasing
+    # m: the retreat first slides the pads this far off the wire they touch (the way the
+    # wire pushes them), then rises
+    retreat_slide: float = 0.015
     press_from: float = 0.03  # m of path arc (from the entry) where the pressing pass starts
     press_clearance: float = 0.0015  # m: pad bottom above the wall tops where it cannot fit
     press_squeeze: float = 0.0005  # m: pad bottom below a seated wire's top where it fits
@@ -159,7 +167,7 @@ class SeatingExpertConfig:
                 f"end) and -1 (end to entry), got {self.press_directions!r}"
             )
         owner = "SeatingExpertConfig"
-        for name in ("place_stall_distance", "press_lead_in", "press_lead_out"):
+        for name in ("place_stall_distance", "press_lead_in", "press_lead_out", "retreat_slide"):
             validation.non_negative(owner, name, getattr(self, name))
         validation.at_least_int(owner, "place_stall_steps", self.place_stall_steps, 1)
 
@@ -196,6 +204,7 @@ class SeatingExpert(ScriptedExpert):
         ("lift_from", (3,)),
         ("hold_pos", (3,)),
         ("press_end", (3,)),
+        ("slide_dir", (3,)),
         ("start_rot", (3, 3)),
     )
     CONTROL = "cartesian"
@@ -353,7 +362,12 @@ class SeatingExpert(ScriptedExpert):
             wide = min(cfg.release_open, env.robot.max_opening)
             return hold, None, cfg.place_speed, released, bool(gap > 0.9 * wide)
         if name == "retreat":
-            return hold + cfg.retreat * up, None, cfg.descend_speed, released, None
+            slide = cfg.retreat_slide * fsm.get("slide_dir")[i]
+            moved = self._tcp(i)[0] - hold
+            moved -= np.dot(moved, up) * up
+            if np.linalg.norm(moved) < 0.8 * np.linalg.norm(slide):
+                return hold + slide, None, cfg.descend_speed, released, False
+            return hold + cfg.retreat * up + slide, None, cfg.descend_speed, released, None
         if name in ("press_approach", "press_descend", "press"):
             start, stop = self._press_span(i)
             opened = self._open_command(i, cfg.press_open)
@@ -392,6 +406,17 @@ class SeatingExpert(ScriptedExpert):
             )
         goal = hold + (cfg.retreat + cfg.final_retreat) * up
         return goal, None, cfg.descend_speed, self._open_command(i, gap), None
+
+    def _wire_push(self, i) -> np.ndarray:
+        """Base-frame horizontal unit vector (zeros if none): the way the wire pushes the pads
+        it touches (a released wire that springs against a pad rides up with it)."""
+        env = self.envs[i]
+        pads = env.task.pads[0] | env.task.pads[1]
+        push = self._base(i)[1].T @ contact_push(env.data, pads, env.task.assembly.wire_contacts)
+        up = self._base(i)[1].T @ UP
+        push -= np.dot(push, up) * up
+        norm = np.linalg.norm(push)
+        return push / norm if norm > 1e-9 else np.zeros(3)
 
     def _place_stalled(self, i, tcp) -> bool | None:
         """True once the TCP has stayed within ``place_stall_distance`` for
@@ -613,6 +638,8 @@ class SeatingExpert(ScriptedExpert):
         above the table: the pads (closing along the base y axis) squeeze the tail across."""
         cfg, env = self.config, self.envs[i]
         site = env.data.site_xpos[env.task.assembly.grasp_site]
+        plug_rot = env.task.assembly.plug_pose(env.data)[1]
+        site = site + cfg.grasp_forward * np.asarray(plug_rot).reshape(3, 3)[:, 0]
         grasp = self._to_base(i, site)
         up = self._base(i)[1].T @ UP
         grasp = grasp + (cfg.grasp_height - self._height(i, grasp)) * up
@@ -645,5 +672,7 @@ class SeatingExpert(ScriptedExpert):
                     fsm.goto("press_approach", np.eye(self.num_envs, dtype=bool)[i])
             elif left == idx("place"):
                 fsm.snapshots["hold_pos"][i] = self._tcp(i)[0]
+            elif left == idx("release"):
+                fsm.snapshots["slide_dir"][i] = self._wire_push(i)
             elif left == idx("retreat") and not self._needs_pressing(i):
                 fsm.goto("done", np.eye(self.num_envs, dtype=bool)[i])
