@@ -96,7 +96,6 @@ class SeatingExpertConfig:
     """Geometry and speeds of the seating expert (SI units; per control step where stated)."""
 
     hover: float = 0.05  # m above the grasp point where the approach ends
-    grasp_forward: float = 0.0  # EXPERIMENT: m along the plug from its tail's middle
     grasp_height: float = 0.010  # m: TCP above the table when grasping (pads 2 mm clear)
     pre_open: float = 0.04  # m: pad gap while approaching and settling
     # m: pad gap when releasing the plug (capped at the robot's): wide enough that a plug held
@@ -365,7 +364,7 @@ class SeatingExpert(ScriptedExpert):
             slide = cfg.retreat_slide * fsm.get("slide_dir")[i]
             moved = self._tcp(i)[0] - hold
             moved -= np.dot(moved, up) * up
-            if np.linalg.norm(moved) < 0.8 * np.linalg.norm(slide):
+            if np.linalg.norm(moved) < 0.8 * np.linalg.norm(slide):  # the rest on the way up
                 return hold + slide, None, cfg.descend_speed, released, False
             return hold + cfg.retreat * up + slide, None, cfg.descend_speed, released, None
         if name in ("press_approach", "press_descend", "press"):
@@ -638,8 +637,6 @@ class SeatingExpert(ScriptedExpert):
         above the table: the pads (closing along the base y axis) squeeze the tail across."""
         cfg, env = self.config, self.envs[i]
         site = env.data.site_xpos[env.task.assembly.grasp_site]
-        plug_rot = env.task.assembly.plug_pose(env.data)[1]
-        site = site + cfg.grasp_forward * np.asarray(plug_rot).reshape(3, 3)[:, 0]
         grasp = self._to_base(i, site)
         up = self._base(i)[1].T @ UP
         grasp = grasp + (cfg.grasp_height - self._height(i, grasp)) * up
