@@ -114,11 +114,10 @@ def peak_contact_force(model, data, a: Contacts, b: Contacts | None = None) -> f
 def contact_push(data, a: Contacts, b: Contacts | None) -> np.ndarray:
     """Sum (3,) of the unit normals of the contacts between set ``a`` and set ``b`` (None:
     anything), each turned to point from ``b`` into ``a``: the way ``b`` pushes ``a``."""
-    push = np.zeros(3)
-    for i in _between(data, a, b):
-        normal = data.contact.frame[i, :3]  # MuJoCo: from the contact's side 0 to side 1
-        push += normal if a.mask(data, 1)[i] else -normal
-    return push
+    hits = _between(data, a, b)
+    # MuJoCo's contact normal points from the contact's side 0 to its side 1.
+    sign = np.where(a.mask(data, 1)[hits], 1.0, -1.0)
+    return sign @ data.contact.frame[hits, :3] if hits.size else np.zeros(3)
 
 
 def touching(model, data, a: Contacts, b: Contacts | None) -> bool:

@@ -38,6 +38,18 @@ def rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(rotation_error(a, b)))
 
 
+def flat(v: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``v`` (..., 3) without its component along ``up``."""
+    return v - np.multiply.outer(v @ up, up)
+
+
+def horizontal(v: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Unit vector along ``v`` (3,) without its component along ``up`` (near zero, not unit,
+    where that component is all of ``v``: a zero ``v`` gives zeros)."""
+    v = flat(v, up)
+    return v / max(np.linalg.norm(v), 1e-9)
+
+
 @dataclass(frozen=True)
 class RobotView:
     """What every expert reads of its robot, once per control step; poses in the robot base

@@ -62,7 +62,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wirecraft.experts.base import ScriptedExpert, rotation_angle
+from wirecraft.experts.base import ScriptedExpert, flat, horizontal, rotation_angle
 from wirecraft.experts.fsm import Phase
 from wirecraft.tasks.assembly import resample
 from wirecraft.tasks.routing import MAX_CLIPS
@@ -143,11 +143,6 @@ PHASES = (
 )
 
 
-def _horizontal(v: np.ndarray, up: np.ndarray) -> np.ndarray:
-    v = v - np.dot(v, up) * up
-    return v / max(np.linalg.norm(v), 1e-9)
-
-
 class RoutingExpert(ScriptedExpert):
     """Vectorized scripted expert for the routing task (N environments, N = 1 for one env).
 
@@ -221,7 +216,7 @@ class RoutingExpert(ScriptedExpert):
         """The two TCP rotations pointing down with the pads closing across the horizontal
         ``axis`` (yaws 180 deg apart: the gripper is symmetric)."""
         up = self._up(i)
-        axis = _horizontal(axis, up)
+        axis = horizontal(axis, up)
         z = -up
         rots = []
         for sign in (1.0, -1.0):
@@ -317,7 +312,7 @@ class RoutingExpert(ScriptedExpert):
         clips = [self._to_base(i, np.array(c.pos)) for c in env.task.placed_clips(env.data)]
         clear = np.ones(len(points), bool)
         for c in clips:
-            clear &= np.linalg.norm(_flat(points - c, up), axis=1) > cfg.clip_clearance
+            clear &= np.linalg.norm(flat(points - c, up), axis=1) > cfg.clip_clearance
         clear &= (arc <= arc[-1] - cfg.plug_clearance) & (arc > anchor_arc)
         far = arc >= need
         for ok in (clear & far, clear, arc > anchor_arc, np.ones(len(points), bool)):
@@ -341,7 +336,7 @@ class RoutingExpert(ScriptedExpert):
         _, slot_axis, _ = self._clip_geometry(i)
         self.fsm.snapshots["grasp_rot"][i] = self._grasp_rot(i, tangent, slot_axis)
         self.fsm.snapshots["anchor"][i] = anchor
-        self.fsm.snapshots["direction"][i] = _horizontal(slot - anchor, up)
+        self.fsm.snapshots["direction"][i] = horizontal(slot - anchor, up)
         self.grasp_arc[i] = arc[k]
         self.free_wire[i] = arc[k] - anchor_arc
 
@@ -363,9 +358,9 @@ class RoutingExpert(ScriptedExpert):
         up = self._up(i)
         nodes = self._to_base(i, self.envs[i].wire_points())
         line = resample(nodes, 0.002)
-        flat = np.linalg.norm(_flat(line - tcp_pos, up), axis=1)
-        k = int(np.argmin(flat))
-        if flat[k] > 0.01:
+        across = np.linalg.norm(flat(line - tcp_pos, up), axis=1)
+        k = int(np.argmin(across))
+        if across[k] > 0.01:
             return self.config.wire_below_tcp
         return float(np.dot(tcp_pos - line[k], up))
 
@@ -377,7 +372,7 @@ class RoutingExpert(ScriptedExpert):
 
     def _taut_length(self, i, slot, anchor):
         """m of wire from the anchor to the clip front at the carry height, pulled straight."""
-        reach = np.linalg.norm(_flat(slot - anchor, self._up(i)))
+        reach = np.linalg.norm(flat(slot - anchor, self._up(i)))
         return float(np.hypot(reach + self.config.front, self._rise(i, anchor)))
 
     def _stretch_goal(self, i):
@@ -388,7 +383,7 @@ class RoutingExpert(ScriptedExpert):
         up = self._up(i)
         slot, _, _ = self._clip_geometry(i)
         anchor, direction = fsm.get("anchor")[i], fsm.get("direction")[i]
-        reach = np.linalg.norm(_flat(slot - anchor, up))
+        reach = np.linalg.norm(flat(slot - anchor, up))
         straight = np.sqrt(max(self.free_wire[i] ** 2 - self._rise(i, anchor) ** 2, 0.0))
         distance = max(straight + cfg.over_pull, reach + cfg.front + cfg.over_pull)
         return self._at_height(i, anchor + distance * direction, cfg.carry_height)
@@ -401,7 +396,7 @@ class RoutingExpert(ScriptedExpert):
         up = self._up(i)
         stretch = self._stretch_goal(i)
         direction = fsm.get("direction")[i]
-        offset = _flat(fsm.get("lift_from")[i] - stretch, up)
+        offset = flat(fsm.get("lift_from")[i] - stretch, up)
         offset = offset - np.dot(offset, direction) * direction
         size = np.linalg.norm(offset)
         if size < 1e-6:
@@ -414,14 +409,14 @@ class RoutingExpert(ScriptedExpert):
         whose uprights would stop the pads: then the carry height, over it."""
         cfg, env = self.config, self.envs[i]
         up = self._up(i)
-        start = _flat(self.fsm.get("lift_from")[i], up)
-        end = _flat(self._beside_goal(i), up)
+        start = flat(self.fsm.get("lift_from")[i], up)
+        end = flat(self._beside_goal(i), up)
         span = end - start
         t_max = max(float(span @ span), 1e-12)
         for k, clip in enumerate(env.task.placed_clips(env.data)):
             if k == self.clip[i]:
                 continue
-            centre = _flat(self._to_base(i, np.array(clip.pos)), up)
+            centre = flat(self._to_base(i, np.array(clip.pos)), up)
             t = np.clip((centre - start) @ span / t_max, 0.0, 1.0)
             if np.linalg.norm(start + t * span - centre) < cfg.clip_clearance:
                 return cfg.carry_height
@@ -825,8 +820,3 @@ def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
     """Rotation matrix of ``angle`` (rad) about the unit ``axis`` (Rodrigues)."""
     k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
     return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
-
-
-def _flat(v: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """``v`` (..., 3) without its component along ``up``."""
-    return v - np.multiply.outer(v @ up, up)

@@ -84,7 +84,7 @@ import numpy as np
 
 from wirecraft import validation
 from wirecraft.assets.robots.kinematics import axis_angle_to_mats
-from wirecraft.experts.base import ScriptedExpert
+from wirecraft.experts.base import ScriptedExpert, flat, horizontal
 from wirecraft.experts.fsm import Phase
 from wirecraft.sensors import contact_push
 
@@ -362,8 +362,7 @@ class SeatingExpert(ScriptedExpert):
             return hold, None, cfg.place_speed, released, bool(gap > 0.9 * wide)
         if name == "retreat":
             slide = cfg.retreat_slide * fsm.get("slide_dir")[i]
-            moved = self._tcp(i)[0] - hold
-            moved -= np.dot(moved, up) * up
+            moved = flat(self._tcp(i)[0] - hold, up)
             if np.linalg.norm(moved) < 0.8 * np.linalg.norm(slide):  # the rest on the way up
                 return hold + slide, None, cfg.descend_speed, released, False
             return hold + cfg.retreat * up + slide, None, cfg.descend_speed, released, None
@@ -411,11 +410,8 @@ class SeatingExpert(ScriptedExpert):
         it touches (a released wire that springs against a pad rides up with it)."""
         env = self.envs[i]
         pads = env.task.pads[0] | env.task.pads[1]
-        push = self._base(i)[1].T @ contact_push(env.data, pads, env.task.assembly.wire_contacts)
-        up = self._base(i)[1].T @ UP
-        push -= np.dot(push, up) * up
-        norm = np.linalg.norm(push)
-        return push / norm if norm > 1e-9 else np.zeros(3)
+        push = contact_push(env.data, pads, env.task.assembly.wire_contacts)
+        return horizontal(self._base(i)[1].T @ push, self._base(i)[1].T @ UP)
 
     def _place_stalled(self, i, tcp) -> bool | None:
         """True once the TCP has stayed within ``place_stall_distance`` for
