@@ -122,6 +122,11 @@ class RoutingExpertConfig:
     stall_steps: int = 10  # ... for this many steps has stalled (rotate, raise, stretch)
     max_clip_tries: int = 6  # routings of one clip per episode (the first included)
     recheck_steps: int = 10  # steps in a row a clip must read empty before ``done`` goes back
+    # steps in a row the clip being routed must read seated (``seated_margin`` below the lips)
+    # while the wire is carried before the expert releases it there: lifting or turning
+    # the wire near the clip sometimes drops it in, and pulling on then drags it out of the
+    # pads (the clip holds it) and the routing starts over, again and again
+    seated_early_steps: int = 3
 
 
 PHASES = (
@@ -168,6 +173,7 @@ class RoutingExpert(ScriptedExpert):
         self.clip = np.zeros(self.num_envs, int)  # the clip being routed
         self.grasp_retries = np.zeros(self.num_envs, int)
         self.unseated_steps = np.zeros(self.num_envs, int)  # steps in a row done saw a gap
+        self.seated_steps = np.zeros(self.num_envs, int)  # steps in a row a carry saw it seated
         self.grasp_arc = np.zeros(self.num_envs)  # m along the wire of the current grasp
         self.free_wire = np.zeros(self.num_envs)  # m of wire between anchor and grasp
         self.held_below = np.full(self.num_envs, self.config.wire_below_tcp)  # m: held wire's
@@ -184,6 +190,7 @@ class RoutingExpert(ScriptedExpert):
         self.clip[mask] = 0
         self.grasp_retries[mask] = 0
         self.unseated_steps[mask] = 0
+        self.seated_steps[mask] = 0
         self.tries[mask] = 0
         self.tries[mask, 0] = 1
         self.yaw[mask] = 0.0
@@ -644,6 +651,9 @@ class RoutingExpert(ScriptedExpert):
 
         lift_from = fsm.get("lift_from")[i]
         slot_rot = fsm.get("slot_rot")[i]
+        if fsm.phase[i] in self._carrying and self._seated_early(i):
+            _, rot = self._ctl_target(i)
+            return self.views[i].tcp_pos, rot, fast, 1.0, True  # on to the release
         # ---- Lift: straight up to the carry height, starting to turn to the slot axis ---------
         if name == "lift":
             goal = self._at_height(i, lift_from, self._swing_height(i))
@@ -731,6 +741,14 @@ class RoutingExpert(ScriptedExpert):
             return press, slot_rot, speed, open_cmd, None
         return self._at_height(i, press, clear), slot_rot, fast, open_cmd, None
 
+    def _seated_early(self, i) -> bool:
+        """While the wire is carried: whether the clip being routed has read seated for
+        ``seated_early_steps`` steps in a row."""
+        cfg = self.config
+        seated = self.seated(i)[self.clip[i]]
+        self.seated_steps[i] = self.seated_steps[i] + 1 if seated else 0
+        return bool(self.seated_steps[i] >= cfg.seated_early_steps)
+
     def _next_clip(self, i) -> int | None:
         """The first clip (in route order) the wire is not seated in that has routings left
         (``max_clip_tries``); None when every clip holds the wire or none has tries left.  In
@@ -772,6 +790,13 @@ class RoutingExpert(ScriptedExpert):
             if left == idx("stretch"):
                 self.lateral[i] = 0.0
                 self.yaw[i] = 0.0
+            if left in self._carrying and self.seated_steps[i] >= cfg.seated_early_steps:
+                # the wire dropped into the clip on the way: let go of it there
+                self.seated_steps[i] = 0
+                tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
+                fsm.snapshots["hold_pos"][i] = tcp_pos
+                fsm.goto("release", one)
+                continue
             if (
                 left in self._carrying
                 and not self._held(i)
@@ -784,6 +809,7 @@ class RoutingExpert(ScriptedExpert):
                 fsm.goto("approach", one)
                 continue
             if left == idx("close"):
+                self.seated_steps[i] = 0
                 tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
                 self.held_below[i] = self._held_depth(i, tcp_pos)
                 fsm.snapshots["lift_from"][i] = tcp_pos
