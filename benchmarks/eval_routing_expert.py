@@ -1,13 +1,13 @@
 """Success of the routing expert over seeds:
 
     python benchmarks/eval_routing_expert.py --num-clips 3 --episodes 100 [--wire rod]
-        [--first-seed 0] [--episode-seconds S] [--verbose]
+        [--first-seed 0] [--episode-seconds S] [--verbose] [--set FIELD=VALUE ...]
 
 Each episode is reset with its seed (first-seed, first-seed + 1, ...) and run to the end (the
 task's length by default: 8 s = 480 control steps per clip); "success at the end" is the
 task's ``success`` on the last step, "at some step" whether it was ever true.  Failures list
 the seed, the clips routed at the end, the expert's phase and clip, and how often it routed
-each clip.
+each clip.  ``--set`` overrides ``RoutingExpertConfig`` fields, for comparing variants.
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ import numpy as np
 from tqdm import tqdm
 
 import wirecraft
-from wirecraft.experts.routing import RoutingExpert
+from wirecraft.experts.routing import RoutingExpert, RoutingExpertConfig
+from wirecraft.rl.config import parse_override
 
 
 def main() -> None:
@@ -33,7 +34,15 @@ def main() -> None:
     parser.add_argument("--robot", default="ur5")
     parser.add_argument("--wire", default="articulated")
     parser.add_argument("--verbose", action="store_true", help="print every episode's phases")
+    parser.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="override RoutingExpertConfig fields (lists comma-separated, true/false)",
+    )
     args = parser.parse_args()
+    overrides = dict(parse_override(item, RoutingExpertConfig()) for item in args.set)
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     env = wirecraft.make(
@@ -43,7 +52,7 @@ def main() -> None:
         wire=args.wire,
         episode_seconds=args.episode_seconds,
     )
-    expert = RoutingExpert(env)
+    expert = RoutingExpert(env, RoutingExpertConfig(**overrides))
     ends, anys, failures = [], [], []
     start = time.time()
     seeds = range(args.first_seed, args.first_seed + args.episodes)

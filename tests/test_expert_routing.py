@@ -315,3 +315,31 @@ def test_swing_goes_over_a_clip_in_its_way():
     )
     assert expert._swing_height(0) == cfg.sweep_height
     env.close()
+
+
+def test_a_wire_that_drops_into_the_clip_while_carried_is_released_there():
+    """Lifting or turning the wire near the clip sometimes drops it into the slot; pulling on
+    then drags it out of the pads (seed 1, 3 clips, looped so for 650 steps).  The expert lets
+    go once its own check reads the clip seated ``seated_early_steps`` steps in a row (a
+    reading that flickers starts the count again), where the TCP is."""
+    env = wirecraft.make("routing", num_clips=2)
+    env.reset(seed=0)
+    expert = RoutingExpert(env)
+    u = env.unwrapped
+    tcp, rot = u.robot.tcp_pose_base(u.model, u.data)
+    fsm = expert.fsm
+    fsm.goto("raise", [0])
+    snapshots = {"lift_from": tcp, "slot_rot": rot, "grasp_pos": tcp, "grasp_rot": rot}
+    for name, value in snapshots.items():
+        fsm.snapshots[name][0] = value
+    fsm.snapshots["anchor"][0] = tcp - [0.1, 0.0, 0.0]
+    fsm.snapshots["direction"][0] = [1.0, 0.0, 0.0]
+    need = expert.config.seated_early_steps
+    readings = [True] * (need - 1) + [False] + [True] * need
+    for k, reading in enumerate(readings):
+        expert.seated = lambda i, margin=None, r=reading: np.array([r, False])
+        expert.act()
+        released = k == len(readings) - 1
+        assert expert.phase_names == ["release" if released else "raise"], k
+    np.testing.assert_allclose(fsm.get("hold_pos")[0], tcp, atol=1e-9)
+    env.close()
