@@ -343,3 +343,34 @@ def test_a_wire_that_drops_into_the_clip_while_carried_is_released_there():
         assert expert.phase_names == ["release" if released else "raise"], k
     np.testing.assert_allclose(fsm.get("hold_pos")[0], tcp, atol=1e-9)
     env.close()
+
+
+@pytest.mark.parametrize("beyond", [False, True])
+def test_a_retry_grasps_at_a_joint_only_near_the_taut_length(beyond):
+    """A retry grasps the articulated wire at a joint, the first one beyond the taut length
+    (anchor to clip front), unless that joint lies more than ``retry_joint_spare`` beyond it:
+    then it grasps the first point past the taut length, as a first try does (the wire to
+    spare arched up between the clips)."""
+    env = wirecraft.make("routing", num_clips=2)
+    env.reset(seed=0)
+    expert = RoutingExpert(env)
+    cfg = expert.config
+    u = env.unwrapped
+    expert.clip[0] = 1
+    expert.tries[0, 1] = 2  # a retry
+    slot, _, _ = expert._clip_geometry(0)
+    anchor_world = expert._base(0)[0] + expert._base(0)[1] @ expert._clip_geometry(0, 0)[0]
+    need = expert._taut_length(0, slot, expert._anchor(0)[0]) + cfg.grasp_slack
+    spare = cfg.retry_joint_spare + 0.01 if beyond else cfg.retry_joint_spare / 2
+    link = (need + spare) / 4  # the fourth joint from the anchor lies `spare` past the need
+    away = np.array([-1.0, 0.0, 0.0])  # off the route, clear of both clips
+    nodes = anchor_world + np.outer(link * np.arange(9), away)
+    u.wire_points = lambda: nodes
+    assert expert._anchor(0)[1] == pytest.approx(0.0, abs=1e-9)
+    expert._plan_grasp(0)
+    if not beyond:
+        assert abs(expert.grasp_arc[0] - 4 * link) <= cfg.retry_joint_reach
+    else:
+        assert need <= expert.grasp_arc[0] < need + cfg.grasp_spacing
+        assert abs(expert.grasp_arc[0] - 4 * link) > cfg.retry_joint_reach
+    env.close()

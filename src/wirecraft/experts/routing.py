@@ -51,9 +51,16 @@ base frame.
 - A slot link that crosses aslant (from the second clip on, on a retry of a clip or when the
   hop from the previous clip meets the slot axis at more than ``aslant_hop``): the articulated
   wire's rigid link then lies across the slot at about the hop's angle and levers about the
-  lips.  The grasp is taken at a joint, that joint is brought ``retry_joint`` past the slot
-  centre (the pads clamp the end of the slot's own link), and the pads turn about the
-  vertical against the slot link's yaw (``yaw_gain``, at most ``max_yaw``).
+  lips.  The grasp is taken at a joint (one at most ``retry_joint_spare`` beyond the taut
+  length; farther, the wire to spare arched up between the clips and lifted the slot's link
+  off the lips, so the first-try grasp point is taken instead), that joint is brought
+  ``retry_joint`` past the slot centre (the pads clamp the end of the slot's own link), and
+  the pads turn about the vertical against the slot link's yaw (``yaw_gain``, at most
+  ``max_yaw``).
+- A wire that drops into the clip being routed while it is carried (lift to pull_back; the
+  expert's own check reads it seated ``seated_early_steps`` steps in a row) is released
+  there: pulling on, the clip held it and it slid out of the pads, and the routing began
+  again, over and over.
 """
 
 from __future__ import annotations
@@ -112,6 +119,9 @@ class RoutingExpertConfig:
     retry_changes: bool = True
     retry_joint: float = 0.024  # m past the slot centre for the joint held between the pads
     retry_joint_reach: float = 0.003  # m: grasp points at most this far from a joint
+    # m: a joint more than this beyond the taut length is not grasped (the normal grasp point
+    # is): the wire to spare arched up between the clips, lifting the slot's link off the lips
+    retry_joint_spare: float = 0.01
     yaw_gain: float = 0.1  # of the slot link's yaw off the slot axis, turned per step
     max_yaw: float = 0.4  # rad: largest turn of the pads off the slot axis
     aslant_hop: float = 0.26  # rad: hops steeper than this get the retry changes at once
@@ -330,6 +340,7 @@ class RoutingExpert(ScriptedExpert):
         node_dist = np.min(np.abs(arc[:, None] - nodes_arc[None, :]), axis=1)
         articulated = np.median(np.diff(nodes_arc)) > 0.012
         at_joint = clear & far & (node_dist < cfg.retry_joint_reach)
+        at_joint &= arc <= need + cfg.retry_joint_spare
         if self._retrying(i) and articulated and at_joint.any():
             k = np.flatnonzero(at_joint)[0]
         elif (clear & far).any():
