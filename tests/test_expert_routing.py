@@ -317,6 +317,43 @@ def test_swing_goes_over_a_clip_in_its_way():
     env.close()
 
 
+def test_swing_goes_high_when_the_wire_beyond_the_grasp_lies_near_a_later_clip():
+    """Swung low, the wire beyond the pads caught on the next clip's body and was pulled out
+    of them (3-clip seed 36).  The ``trail_check`` m of wire beyond the grasp, read as the
+    grasp closes, passing within ``clip_clearance`` of a later clip sends the swing over at
+    the carry height; near an earlier clip, or farther, it does not."""
+    env = wirecraft.make("routing", num_clips=3)
+    env.reset(seed=0)
+    expert = RoutingExpert(env)
+    u = env.unwrapped
+    cfg = expert.config
+    clips = u.task.placed_clips(u.data)
+    expert.clip[0] = 1
+    expert.grasp_arc[0] = 0.03
+
+    def wire_beside(clip, offset):
+        # along world x through the clip's x, `offset` to its side; the grasp 5 cm before it
+        start = np.array(clip.pos) + [-0.08, offset, 0.004]
+        nodes = start + np.outer(np.arange(12) * 0.01, [1.0, 0.0, 0.0])
+        u.wire_points = lambda: nodes
+
+    wire_beside(clips[2], cfg.clip_clearance - 0.01)
+    assert expert._trail_near_clip(0)
+    wire_beside(clips[2], cfg.clip_clearance + 0.01)
+    assert not expert._trail_near_clip(0)
+    wire_beside(clips[0], 0.0)  # an earlier clip (the wire is already in it)
+    assert not expert._trail_near_clip(0)
+    # the swing from well beside the lane would go low; the trail sends it high
+    expert._beside_goal = lambda i: expert._to_base(0, np.array(clips[1].pos) + [0.05, 0, 0])
+    expert.fsm.snapshots["lift_from"][0] = expert._to_base(
+        0, np.array(clips[1].pos) + [0.12, 0.0, 0.0]
+    )
+    assert expert._swing_height(0) == cfg.sweep_height
+    expert.trail_near_clip[0] = True
+    assert expert._swing_height(0) == cfg.carry_height
+    env.close()
+
+
 def test_a_wire_that_drops_into_the_clip_while_carried_is_released_there():
     """Lifting or turning the wire near the clip sometimes drops it into the slot; pulling on
     then drags it out of the pads (seed 1, 3 clips, looped so for 650 steps).  The expert lets

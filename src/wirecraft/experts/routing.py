@@ -137,6 +137,15 @@ class RoutingExpertConfig:
     # the wire near the clip sometimes drops it in, and pulling on then drags it out of the
     # pads (the clip holds it) and the routing starts over, again and again
     seated_early_steps: int = 3
+    # While pushing: wire between the anchor and the slot lying higher than the clip's top
+    # (an arch of wire to spare, which keeps the slot's link up on the lips) moves the pads
+    # ``arch_pull`` per step farther past the slot, up to ``arch_max_front`` (0: off)
+    arch_pull: float = 0.0
+    arch_max_front: float = 0.045
+    # m of wire beyond the grasp that must lie clear (``clip_clearance``) of the later clips
+    # for the low swing: dragged sideways at 16 mm, it caught on a later clip's body and was
+    # pulled out of the pads (0: not checked)
+    trail_check: float = 0.06
 
 
 PHASES = (
@@ -184,6 +193,7 @@ class RoutingExpert(ScriptedExpert):
         self.grasp_retries = np.zeros(self.num_envs, int)
         self.unseated_steps = np.zeros(self.num_envs, int)  # steps in a row done saw a gap
         self.seated_steps = np.zeros(self.num_envs, int)  # steps in a row a carry saw it seated
+        self.trail_near_clip = np.zeros(self.num_envs, bool)  # set as the grasp closes
         self.grasp_arc = np.zeros(self.num_envs)  # m along the wire of the current grasp
         self.free_wire = np.zeros(self.num_envs)  # m of wire between anchor and grasp
         self.held_below = np.full(self.num_envs, self.config.wire_below_tcp)  # m: held wire's
@@ -201,6 +211,7 @@ class RoutingExpert(ScriptedExpert):
         self.grasp_retries[mask] = 0
         self.unseated_steps[mask] = 0
         self.seated_steps[mask] = 0
+        self.trail_near_clip[mask] = False
         self.tries[mask] = 0
         self.tries[mask, 0] = 1
         self.yaw[mask] = 0.0
@@ -426,6 +437,8 @@ class RoutingExpert(ScriptedExpert):
         unless the swing's straight path passes within ``clip_clearance`` of another clip,
         whose uprights would stop the pads: then the carry height, over it."""
         cfg, env = self.config, self.envs[i]
+        if self.trail_near_clip[i]:
+            return cfg.carry_height
         up = self._up(i)
         start = flat(self.fsm.get("lift_from")[i], up)
         end = flat(self._beside_goal(i), up)
@@ -439,6 +452,42 @@ class RoutingExpert(ScriptedExpert):
             if np.linalg.norm(start + t * span - centre) < cfg.clip_clearance:
                 return cfg.carry_height
         return cfg.sweep_height
+
+    def _arch_height(self, i) -> float:
+        """m by which the wire between the anchor and the clip (its middle 80 %, along the
+        anchor-to-slot line) rises above the clip's top at most."""
+        env = self.envs[i]
+        up = self._up(i)
+        slot, _, clip = self._clip_geometry(i)
+        anchor = self.fsm.get("anchor")[i]
+        span = flat(slot - anchor, up)
+        length2 = max(float(span @ span), 1e-12)
+        line = resample(self._to_base(i, env.wire_points()), 0.005)
+        t = flat(line - anchor, up) @ span / length2
+        between = line[(t > 0.1) & (t < 0.9)]
+        if not len(between):
+            return -np.inf
+        top = clip.base_height + clip.slot_depth
+        table = self._table_height(i, 0.0)
+        return float(np.max((between - table) @ up) - top)
+
+    def _trail_near_clip(self, i) -> bool:
+        """Whether the ``trail_check`` m of wire beyond the grasp pass within
+        ``clip_clearance`` (horizontally) of a later clip's centre."""
+        cfg, env = self.config, self.envs[i]
+        if cfg.trail_check <= 0:
+            return False
+        up = self._up(i)
+        line = resample(self._to_base(i, env.wire_points()), cfg.grasp_spacing)
+        arc = self._arc(line)
+        trail = line[(arc > self.grasp_arc[i]) & (arc <= self.grasp_arc[i] + cfg.trail_check)]
+        for clip in env.task.placed_clips(env.data)[self.clip[i] + 1 :]:
+            centre = self._to_base(i, np.array(clip.pos))
+            if len(trail) and np.min(np.linalg.norm(flat(trail - centre, up), axis=1)) < (
+                cfg.clip_clearance
+            ):
+                return True
+        return False
 
     # -- the press ---------------------------------------------------------------------------
     def _pad_tip_offsets(self, i):
@@ -715,6 +764,9 @@ class RoutingExpert(ScriptedExpert):
 
         # ---- Push: down, dragging the wire past the lips -------------------------------------
         if name == "push":
+            if cfg.arch_pull > 0 and self._arch_height(i) > 0:
+                self.front[i] = min(self.front[i] + cfg.arch_pull, cfg.arch_max_front)
+                front = slot + self.front[i] * sign * axis + self.lateral[i] * lateral
             if self._force_stop(i, cfg.push_force):
                 return self.views[i].tcp_pos, slot_rot, fast, 1.0, True
             # a wire just past the lips springs back out on release: push it well down
@@ -821,6 +873,7 @@ class RoutingExpert(ScriptedExpert):
                 continue
             if left == idx("close"):
                 self.seated_steps[i] = 0
+                self.trail_near_clip[i] = self._trail_near_clip(i)
                 tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
                 self.held_below[i] = self._held_depth(i, tcp_pos)
                 fsm.snapshots["lift_from"][i] = tcp_pos
