@@ -137,11 +137,6 @@ class RoutingExpertConfig:
     # the wire near the clip sometimes drops it in, and pulling on then drags it out of the
     # pads (the clip holds it) and the routing starts over, again and again
     seated_early_steps: int = 3
-    # While pushing: wire between the anchor and the slot lying higher than the clip's top
-    # (an arch of wire to spare, which keeps the slot's link up on the lips) moves the pads
-    # ``arch_pull`` per step farther past the slot, up to ``arch_max_front`` (0: off)
-    arch_pull: float = 0.0
-    arch_max_front: float = 0.045
     # m of wire beyond the grasp that must lie clear (``clip_clearance``) of the later clips
     # for the low swing: dragged sideways at 16 mm, it caught on a later clip's body and was
     # pulled out of the pads (0: not checked)
@@ -453,24 +448,6 @@ class RoutingExpert(ScriptedExpert):
                 return cfg.carry_height
         return cfg.sweep_height
 
-    def _arch_height(self, i) -> float:
-        """m by which the wire between the anchor and the clip (its middle 80 %, along the
-        anchor-to-slot line) rises above the clip's top at most."""
-        env = self.envs[i]
-        up = self._up(i)
-        slot, _, clip = self._clip_geometry(i)
-        anchor = self.fsm.get("anchor")[i]
-        span = flat(slot - anchor, up)
-        length2 = max(float(span @ span), 1e-12)
-        line = resample(self._to_base(i, env.wire_points()), 0.005)
-        t = flat(line - anchor, up) @ span / length2
-        between = line[(t > 0.1) & (t < 0.9)]
-        if not len(between):
-            return -np.inf
-        top = clip.base_height + clip.slot_depth
-        table = self._table_height(i, 0.0)
-        return float(np.max((between - table) @ up) - top)
-
     def _trail_near_clip(self, i) -> bool:
         """Whether the ``trail_check`` m of wire beyond the grasp pass within
         ``clip_clearance`` (horizontally) of a later clip's centre."""
@@ -764,9 +741,6 @@ class RoutingExpert(ScriptedExpert):
 
         # ---- Push: down, dragging the wire past the lips -------------------------------------
         if name == "push":
-            if cfg.arch_pull > 0 and self._arch_height(i) > 0:
-                self.front[i] = min(self.front[i] + cfg.arch_pull, cfg.arch_max_front)
-                front = slot + self.front[i] * sign * axis + self.lateral[i] * lateral
             if self._force_stop(i, cfg.push_force):
                 return self.views[i].tcp_pos, slot_rot, fast, 1.0, True
             # a wire just past the lips springs back out on release: push it well down
