@@ -36,7 +36,9 @@ base frame.
 - At grasp time the anchor and the anchor-to-clip direction (horizontal) are frozen.
 - Lift a little and swing the wire low to beside the clip while turning the pads across the
   slot axis (a stiff wire lifted and swung near a seated clip pries it out; over another clip
-  that lies in the swing's path at the carry height), raise to the carry height,
+  that lies in the swing's path at the carry height, and so when the ``trail_check`` m of
+  wire beyond the grasp lie near a later clip: dragged along low, that wire caught on the
+  clip's body and was pulled out of the pads), raise to the carry height,
   over-stretch along the frozen direction until the free wire is straight, pull back
   to the clip front on the slot axis, far side, correcting sideways until the wire crosses
   the clip's mid-plane over the slot centre, with the pads where they hold the link of the
