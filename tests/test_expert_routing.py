@@ -69,10 +69,10 @@ def test_routes_three_clips_after_a_retry():
 
 
 # Measured with benchmarks/eval_routing_expert.py (tuning seeds 0-49, 1440-step episodes): 3 clips
-# 72 % at the end; seed 1 still fails (clip 3's slot link lies aslant, 28 deg hop), so this stays
-# a non-strict xfail until the expert reaches the >= 98 % target.
+# 86 % at the end; seed 1 still fails (the second clip routed 4 times: hops of 31 and 28 deg),
+# so this stays a non-strict xfail until the expert reaches the >= 98 % target.
 @pytest.mark.slow
-@pytest.mark.xfail(reason="routing expert: 3 clips 72 % (36/50 tuning seeds), target 98 %")
+@pytest.mark.xfail(reason="routing expert: 3 clips 86 % (43/50 tuning seeds), target 98 %")
 def test_routes_three_clips_seed_that_still_fails():
     env, info, expert = run_episode(3, 1)
     assert info["success"], (expert.phase_names, info["clips_routed"])
