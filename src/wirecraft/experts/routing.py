@@ -460,11 +460,11 @@ class RoutingExpert(ScriptedExpert):
         line = resample(self._to_base(i, env.wire_points()), cfg.grasp_spacing)
         arc = self._arc(line)
         trail = line[(arc > self.grasp_arc[i]) & (arc <= self.grasp_arc[i] + cfg.trail_check)]
+        if not len(trail):
+            return False
         for clip in env.task.placed_clips(env.data)[self.clip[i] + 1 :]:
-            centre = self._to_base(i, np.array(clip.pos))
-            if len(trail) and np.min(np.linalg.norm(flat(trail - centre, up), axis=1)) < (
-                cfg.clip_clearance
-            ):
+            gaps = np.linalg.norm(flat(trail - self._to_base(i, np.array(clip.pos)), up), axis=1)
+            if gaps.min() < cfg.clip_clearance:
                 return True
         return False
 
