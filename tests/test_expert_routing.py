@@ -318,10 +318,12 @@ def test_swing_goes_over_a_clip_in_its_way():
 
 
 def test_swing_goes_high_when_the_wire_beyond_the_grasp_lies_near_a_later_clip():
-    """Swung low, the wire beyond the pads caught on the next clip's body and was pulled out
-    of them (3-clip seed 36).  The ``trail_check`` m of wire beyond the grasp, read as the
-    grasp closes, passing within ``clip_clearance`` of a later clip sends the swing over at
-    the carry height; near an earlier clip, or farther, it does not."""
+    """Swung low, the articulated wire beyond the pads caught on the next clip's body and was
+    pulled out of them (3-clip seed 36).  The ``trail_check`` m of a wire of rigid links
+    beyond the grasp, read as the grasp closes, passing within ``clip_clearance`` of a later
+    clip sends the swing over at the carry height; near an earlier clip, or farther, or a wire
+    of short pieces (a rod: swung high, it pried the wire out of the clip before), it does
+    not."""
     env = wirecraft.make("routing", num_clips=3)
     env.reset(seed=0)
     expert = RoutingExpert(env)
@@ -331,14 +333,16 @@ def test_swing_goes_high_when_the_wire_beyond_the_grasp_lies_near_a_later_clip()
     expert.clip[0] = 1
     expert.grasp_arc[0] = 0.03
 
-    def wire_beside(clip, offset):
+    def wire_beside(clip, offset, link=0.033):
         # along world x through the clip's x, `offset` to its side; the grasp 5 cm before it
         start = np.array(clip.pos) + [-0.08, offset, 0.004]
-        nodes = start + np.outer(np.arange(12) * 0.01, [1.0, 0.0, 0.0])
+        nodes = start + np.outer(np.arange(0.0, 0.2, link), [1.0, 0.0, 0.0])
         u.wire_points = lambda: nodes
 
     wire_beside(clips[2], cfg.clip_clearance - 0.01)
     assert expert._trail_near_clip(0)
+    wire_beside(clips[2], cfg.clip_clearance - 0.01, link=0.005)  # a rod's nodes
+    assert not expert._trail_near_clip(0)
     wire_beside(clips[2], cfg.clip_clearance + 0.01)
     assert not expert._trail_near_clip(0)
     wire_beside(clips[0], 0.0)  # an earlier clip (the wire is already in it)

@@ -139,9 +139,11 @@ class RoutingExpertConfig:
     # the wire near the clip sometimes drops it in, and pulling on then drags it out of the
     # pads (the clip holds it) and the routing starts over, again and again
     seated_early_steps: int = 3
-    # m of wire beyond the grasp that must lie clear (``clip_clearance``) of the later clips
-    # for the low swing: dragged sideways at 16 mm, it caught on a later clip's body and was
-    # pulled out of the pads (0: not checked)
+    # m of a wire of rigid links beyond the grasp that must lie clear (``clip_clearance``) of
+    # the later clips for the low swing: dragged sideways at 16 mm, a rigid link caught on a
+    # later clip's body and was pulled out of the pads (0: not checked).  A rod is not
+    # checked: swung high, it pried the wire out of the clip before (3 clips, rod wire, tuning
+    # seeds 0-24: 14/25 with the check, 23/25 without)
     trail_check: float = 0.06
 
 
@@ -346,10 +348,9 @@ class RoutingExpert(ScriptedExpert):
         candidates = np.flatnonzero(ok)
         nodes_arc = self._arc(nodes)
         node_dist = np.min(np.abs(arc[:, None] - nodes_arc[None, :]), axis=1)
-        articulated = np.median(np.diff(nodes_arc)) > 0.012
         at_joint = clear & far & (node_dist < cfg.retry_joint_reach)
         at_joint &= arc <= need + cfg.retry_joint_spare
-        if self._retrying(i) and articulated and at_joint.any():
+        if self._retrying(i) and self._rigid_links(i) and at_joint.any():
             k = np.flatnonzero(at_joint)[0]
         elif (clear & far).any():
             k = candidates[0]  # the first point far enough: the wire is nearly taut at the front
@@ -365,6 +366,12 @@ class RoutingExpert(ScriptedExpert):
         self.fsm.snapshots["direction"][i] = horizontal(slot - anchor, up)
         self.grasp_arc[i] = arc[k]
         self.free_wire[i] = arc[k] - anchor_arc
+
+    def _rigid_links(self, i) -> bool:
+        """Whether the wire is made of rigid links longer than 12 mm (the articulated wire's
+        33 mm capsules), not of short pieces that bend anywhere (rod, FEM)."""
+        nodes = self.envs[i].wire_points()
+        return bool(np.median(np.linalg.norm(np.diff(nodes, axis=0), axis=1)) > 0.012)
 
     def _grasp_point(self, i, arc_length):
         """TCP position (base frame) that grasps the wire ``arc_length`` m along it, as it lies
@@ -452,9 +459,10 @@ class RoutingExpert(ScriptedExpert):
 
     def _trail_near_clip(self, i) -> bool:
         """Whether the ``trail_check`` m of wire beyond the grasp pass within
-        ``clip_clearance`` (horizontally) of a later clip's centre."""
+        ``clip_clearance`` (horizontally) of a later clip's centre (a wire of rigid links
+        only)."""
         cfg, env = self.config, self.envs[i]
-        if cfg.trail_check <= 0:
+        if cfg.trail_check <= 0 or not self._rigid_links(i):
             return False
         up = self._up(i)
         line = resample(self._to_base(i, env.wire_points()), cfg.grasp_spacing)
