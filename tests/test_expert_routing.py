@@ -9,7 +9,7 @@ import pytest
 import wirecraft
 from wirecraft.assets.robots.grippers import GRIPPERS
 from wirecraft.experts.base import rotation_angle
-from wirecraft.experts.routing import RoutingExpert
+from wirecraft.experts.routing import RoutingExpert, RoutingExpertConfig
 
 
 def run_episode(num_clips: int, seed: int):
@@ -415,3 +415,17 @@ def test_a_retry_grasps_at_a_joint_only_near_the_taut_length(beyond):
         assert need <= expert.grasp_arc[0] < need + cfg.grasp_spacing
         assert abs(expert.grasp_arc[0] - 4 * link) > cfg.retry_joint_reach
     env.close()
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("retry_joint_spare", -0.01),
+        ("trail_check", float("nan")),
+        ("seated_early_steps", 0),
+        ("seated_early_steps", 2.5),
+    ],
+)
+def test_refuses_bad_settings(field, value):
+    with pytest.raises(ValueError, match=field):
+        RoutingExpertConfig(**{field: value})

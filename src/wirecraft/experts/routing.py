@@ -71,6 +71,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wirecraft import validation
 from wirecraft.experts.base import ScriptedExpert, flat, horizontal, rotation_angle
 from wirecraft.experts.fsm import Phase
 from wirecraft.tasks.assembly import resample
@@ -145,6 +146,12 @@ class RoutingExpertConfig:
     # checked: swung high, it pried the wire out of the clip before (3 clips, rod wire, tuning
     # seeds 0-24: 14/25 with the check, 23/25 without)
     trail_check: float = 0.06
+
+    def __post_init__(self) -> None:
+        owner = "RoutingExpertConfig"
+        for name in ("retry_joint_spare", "trail_check"):
+            validation.non_negative(owner, name, getattr(self, name))
+        validation.at_least_int(owner, "seated_early_steps", self.seated_early_steps, 1)
 
 
 PHASES = (
