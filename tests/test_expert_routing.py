@@ -294,14 +294,18 @@ def test_grasp_point_follows_the_wire_where_it_lies_now():
     env.close()
 
 
-def test_swing_goes_over_a_clip_in_its_way():
+def _routing_second_of_three_clips():
+    """(env, expert, clips) of a 3-clip episode (seed 0) with the expert on the second clip."""
     env = wirecraft.make("routing", num_clips=3)
     env.reset(seed=0)
     expert = RoutingExpert(env)
-    u = env.unwrapped
-    cfg = expert.config
-    clips = u.task.placed_clips(u.data)
     expert.clip[0] = 1
+    return env, expert, env.unwrapped.task.placed_clips(env.unwrapped.data)
+
+
+def test_swing_goes_over_a_clip_in_its_way():
+    env, expert, clips = _routing_second_of_three_clips()
+    cfg = expert.config
     beside = expert._to_base(0, np.array(clips[1].pos) + [0.05, 0.0, 0.0])
     expert._beside_goal = lambda i: beside
     # from beyond clip 2, straight across it: over it
@@ -324,13 +328,9 @@ def test_swing_goes_high_when_the_wire_beyond_the_grasp_lies_near_a_later_clip()
     clip sends the swing over at the carry height; near an earlier clip, or farther, or a wire
     of short pieces (a rod: swung high, it pried the wire out of the clip before), it does
     not."""
-    env = wirecraft.make("routing", num_clips=3)
-    env.reset(seed=0)
-    expert = RoutingExpert(env)
+    env, expert, clips = _routing_second_of_three_clips()
     u = env.unwrapped
     cfg = expert.config
-    clips = u.task.placed_clips(u.data)
-    expert.clip[0] = 1
     expert.grasp_arc[0] = 0.03
 
     def wire_beside(clip, offset, link=0.033):
