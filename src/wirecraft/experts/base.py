@@ -32,6 +32,8 @@ from wirecraft.assets.robots.kinematics import rotation_error
 from wirecraft.control import servo_action
 from wirecraft.experts.fsm import Phase, VectorFSM, step_toward, unwrap_envs
 
+UP = np.array([0.0, 0.0, 1.0])  # world
+
 
 def rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
     """Angle (rad) of the rotation between rotation matrices ``a`` and ``b``."""
@@ -181,6 +183,10 @@ class ScriptedExpert:
         env = self.envs[i]
         site = env.controller.index.base_site
         return env.data.site_xpos[site].copy(), env.data.site_xmat[site].reshape(3, 3).copy()
+
+    def _up(self, i):
+        """The world's up (unit, (3,)) in environment ``i``'s robot base frame."""
+        return self._base(i)[1].T @ UP
 
     def _to_base(self, i, points):
         """World points (..., 3) in environment ``i``'s robot base frame."""

@@ -53,7 +53,6 @@ from wirecraft.assets.robots.kinematics import axis_angle_to_mat, rotation_error
 from wirecraft.experts.base import RobotView, ScriptedExpert, robot_fields, rotation_angle
 from wirecraft.experts.fsm import Phase
 
-UP = np.array([0.0, 0.0, 1.0])  # world
 TABLE_Z = 0.0  # m, table top (world)
 
 

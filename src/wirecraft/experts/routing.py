@@ -77,8 +77,6 @@ from wirecraft.experts.fsm import Phase
 from wirecraft.tasks.assembly import resample
 from wirecraft.tasks.routing import MAX_CLIPS
 
-UP = np.array([0.0, 0.0, 1.0])  # world
-
 
 @dataclass(frozen=True)
 class RoutingExpertConfig:
@@ -233,9 +231,6 @@ class RoutingExpert(ScriptedExpert):
         self.force_stopped[mask] = False
 
     # -- frames ------------------------------------------------------------------------------
-    def _up(self, i):
-        return self._base(i)[1].T @ UP
-
     def _table_height(self, i, height):
         """Base-frame point offset: ``height`` above the table (z = 0 in the world)."""
         return self._to_base(i, np.array([0.0, 0.0, height]))

@@ -84,11 +84,9 @@ import numpy as np
 
 from wirecraft import validation
 from wirecraft.assets.robots.kinematics import axis_angle_to_mats
-from wirecraft.experts.base import ScriptedExpert, flat, horizontal
+from wirecraft.experts.base import UP, ScriptedExpert, flat, horizontal
 from wirecraft.experts.fsm import Phase
 from wirecraft.sensors import contact_push
-
-UP = np.array([0.0, 0.0, 1.0])  # world
 
 
 @dataclass(frozen=True)
@@ -252,7 +250,7 @@ class SeatingExpert(ScriptedExpert):
 
     def _height(self, i, point) -> float:
         """Height (m) of a base-frame point above the table."""
-        up = self._base(i)[1].T @ UP
+        up = self._up(i)
         return float(np.dot(point - self._to_base(i, np.zeros(3)), up))
 
     # -- the channel's path --------------------------------------------------------------------
@@ -304,7 +302,7 @@ class SeatingExpert(ScriptedExpert):
         cfg, env, fsm = self.config, self.envs[i], self.fsm
         self._start_rot(i)  # captured at the episode's first step
         name = fsm.phases[fsm.phase[i]].name
-        up = self._base(i)[1].T @ UP
+        up = self._up(i)
         opened = self._open_command(i)
         grasp = fsm.get("grasp_pos")[i]
 
@@ -411,7 +409,7 @@ class SeatingExpert(ScriptedExpert):
         env = self.envs[i]
         pads = env.task.pads[0] | env.task.pads[1]
         push = contact_push(env.data, pads, env.task.assembly.wire_contacts)
-        return horizontal(self._base(i)[1].T @ push, self._base(i)[1].T @ UP)
+        return horizontal(self._base(i)[1].T @ push, self._up(i))
 
     def _place_stalled(self, i, tcp) -> bool | None:
         """True once the TCP has stayed within ``place_stall_distance`` for
@@ -446,7 +444,7 @@ class SeatingExpert(ScriptedExpert):
     def _yawed(self, i, yaw: float) -> np.ndarray:
         """Base-frame TCP orientation: the start one turned by ``yaw`` (rad, counter-clockwise
         seen from above) about the vertical."""
-        up = self._base(i)[1].T @ UP
+        up = self._up(i)
         return axis_angle_to_mats((yaw * up)[None])[0] @ self._start_rot(i)
 
     def _pad_frame(self, i):
@@ -634,7 +632,7 @@ class SeatingExpert(ScriptedExpert):
         cfg, env = self.config, self.envs[i]
         site = env.data.site_xpos[env.task.assembly.grasp_site]
         grasp = self._to_base(i, site)
-        up = self._base(i)[1].T @ UP
+        up = self._up(i)
         grasp = grasp + (cfg.grasp_height - self._height(i, grasp)) * up
         self.fsm.snapshots["grasp_pos"][i] = grasp
 
@@ -657,7 +655,7 @@ class SeatingExpert(ScriptedExpert):
             elif left == idx("press"):
                 self.press_count[i] += 1
                 rise = self._wall_top(i) + cfg.press_travel - self._pad_target_world(i)[2]
-                up = self._base(i)[1].T @ UP
+                up = self._up(i)
                 fsm.snapshots["press_end"][i] = self._tcp(i)[0] + rise * up
             elif left == idx("press_retreat"):
                 more = self.press_count[i] < len(cfg.press_directions)
