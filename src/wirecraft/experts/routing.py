@@ -370,10 +370,12 @@ class RoutingExpert(ScriptedExpert):
         self.free_wire[i] = arc[k] - anchor_arc
 
     def _rigid_links(self, i) -> bool:
-        """Whether the wire is made of rigid links longer than 12 mm (the articulated wire's
-        33 mm capsules), not of short pieces that bend anywhere (rod, FEM)."""
-        nodes = self.envs[i].wire_points()
-        return bool(np.median(np.linalg.norm(np.diff(nodes, axis=0), axis=1)) > 0.012)
+        """Whether the wire is made of rigid links at least as long as the clip (the
+        articulated wire's 33 mm capsules against 12 mm), not of short pieces that bend
+        anywhere (rod, FEM)."""
+        env = self.envs[i]
+        link = np.median(np.linalg.norm(np.diff(env.wire_points(), axis=0), axis=1))
+        return bool(link >= env.task.placed_clips(env.data)[self.clip[i]].config.length)
 
     def _grasp_point(self, i, arc_length):
         """TCP position (base frame) that grasps the wire ``arc_length`` m along it, as it lies
@@ -597,10 +599,9 @@ class RoutingExpert(ScriptedExpert):
         wire with nodes closer than the clip is long (rod, FEM) bends anywhere: ``front``."""
         cfg, env = self.config, self.envs[i]
         clip = env.task.placed_clips(env.data)[self.clip[i]]
-        nodes = env.wire_points()
-        if np.median(np.linalg.norm(np.diff(nodes, axis=0), axis=1)) < clip.config.length:
+        if not self._rigid_links(i):
             return cfg.front
-        local = clip.to_local(nodes)
+        local = clip.to_local(env.wire_points())
         along = sign * local[:, 0]
         tcp = clip.to_local(env.data.site_xpos[env.task.tcp_site][None])[0]
         tcp_along = sign * tcp[0]
