@@ -94,11 +94,16 @@ def test_attach_holds_body_at_end_pose(model, end):
         mujoco.mj_step(m, d)
     pts = wire.points(m, d)
     tip = pts[-1] if end == "end" else pts[0]
-    np.testing.assert_allclose(d.body("plug").xpos, tip, atol=2e-4)
-    # the plug's +x points away from the wire
+    # the plug's +x points away from the wire, and its origin lies end_gap out along it
     x_axis = d.body("plug").xmat.reshape(3, 3)[:, 0]
     inward = pts[-2] - pts[-1] if end == "end" else pts[1] - pts[0]
     assert float(np.dot(x_axis, inward / np.linalg.norm(inward))) < -0.99
+    np.testing.assert_allclose(d.body("plug").xpos, tip + wire.end_gap * x_axis, atol=2e-4)
+    # the box's back face sits on the body's origin: it must not touch the wire (a flex's
+    # end element cannot be excluded from contact, so only the gap keeps them apart)
+    box = m.body("plug").geomadr[0]
+    touching = [c for c in d.contact[: d.ncon] if box in c.geom]
+    assert touching == [], [(c.geom, c.flex, c.elem, c.dist) for c in touching]
 
 
 def test_attach_rejects_bad_end_and_body():

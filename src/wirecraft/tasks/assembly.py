@@ -134,8 +134,8 @@ class WireAssembly:
         return plug_pos
 
     def _lay(self, model, data, plug_pos, direction, roll) -> None:
-        start = plug_pos - self.wire.config.length * direction
-        line = np.linspace(start, plug_pos, 9)
+        end = plug_pos - self.wire.end_gap * direction
+        line = np.linspace(end - self.wire.config.length * direction, end, 9)
         # set_centerline rolls relative to its own minimal-rotation frame; the task's roll is
         # measured from the frame whose y axis is horizontal (rotation_from_axis).
         natural = quat_to_mat(self.wire.set_centerline(model, data, line)["end"][1])
@@ -166,7 +166,12 @@ class WireAssembly:
         clamp's exit, untwisted from the clamp's frame, and put the plug on its end, at rest."""
         if not self.clamp_fixed:
             raise ValueError("lay_from_clamp needs an assembly built with fixed_clamp")
-        points = np.asarray(points, float)
+        points = np.asarray(points, float).copy()
+        # the wire starts end_gap out of the clamp (wires/base.py), along the first segment
+        lead = points[1] - points[0]
+        if np.linalg.norm(lead) <= self.wire.end_gap:
+            raise ValueError("lay_from_clamp: the first segment must be longer than the end gap")
+        points[0] += self.wire.end_gap * lead / np.linalg.norm(lead)
         # set_centerline's roll is relative to its own transported frame; roll the wire so its
         # start frame is the clamp's (the weld holds it there).
         clamp = quat_to_mat(model.body_quat[model.body(self.clamp).id])

@@ -7,11 +7,18 @@ returns a ``WireHandle`` that reads the centre line and attaches the wire's ends
 Wire frame: the centre line starts at ``pos`` and runs along the frame's +x axis for ``length``
 metres (``quat`` is (w, x, y, z)).  Units are SI throughout.
 
-End-attachment convention (same for both ends): the attached body's origin sits exactly on the
-wire's end point, and the body's +x axis points *away* from the wire, so the wire leaves the body
-along the body's -x axis.  For the ``"end"`` end the body's frame equals the wire frame shifted
-to ``(length, 0, 0)``; for ``"start"`` it is the wire frame turned 180 degrees about z.  A
-connector's plug therefore extends along its own +x, beyond the wire.
+End-attachment convention (same for both ends): the attached body's origin sits on the wire's
+axis ``end_gap`` beyond the wire's end point, and the body's +x axis points *away* from the
+wire, so the wire leaves the body along the body's -x axis.  For the ``"end"`` end the body's
+frame equals the wire frame shifted to ``(length + end_gap, 0, 0)``; for ``"start"`` it is the
+wire frame turned 180 degrees about z, at ``(-end_gap, 0, 0)``.  A connector's plug therefore
+extends along its own +x, beyond the wire.
+
+Why the gap: a body attached to a flex wire must not touch the flex's end element.  Contact
+excludes act on bodies, and a flex element is not a body's geom, so nothing filters that
+contact: a plug face at the end point lay 2.6 mm deep inside the rod's end capsule, and the
+contact and the attachment fought on every step (it ended 3 in 100 rod routing episodes in a
+divergence).  The capsule chain excludes its end capsule instead and has no gap.
 """
 
 from __future__ import annotations
@@ -161,6 +168,10 @@ ATTACH_SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
 
 _TURN_Z = np.array([0.0, 0.0, 0.0, 1.0])  # 180 degrees about z
 
+# m of clearance between a flex wire's collision surface and the body attached to its end: the
+# attachment holds the end within ~0.1 mm, so a contact there would need a real push.
+END_CLEARANCE = 0.001
+
 
 class WireHandle(ABC):
     """A wire built into a spec.  Subclasses implement one physics model each.
@@ -193,12 +204,19 @@ class WireHandle(ABC):
         out = np.array([self.pos + _rotate(self.quat, p) for p in flat])
         return out.reshape(local.shape)
 
+    @property
+    def end_gap(self) -> float:
+        """m from the wire's end point to the origin of a body attached there (module docstring):
+        0 unless the model's collision surface reaches past its end point."""
+        return 0.0
+
     def end_pose_local(self, end: str) -> tuple[np.ndarray, np.ndarray]:
         """Pose of an attached body in the wire frame (see the module's convention)."""
         validation.one_of("WireHandle", "end", end, ENDS)
+        gap = self.end_gap
         if end == "end":
-            return np.array([self.config.length, 0.0, 0.0]), np.array([1.0, 0.0, 0.0, 0.0])
-        return np.zeros(3), _TURN_Z.copy()
+            return np.array([self.config.length + gap, 0.0, 0.0]), np.array([1.0, 0.0, 0.0, 0.0])
+        return np.array([-gap, 0.0, 0.0]), _TURN_Z.copy()
 
     def end_pose(self, end: str) -> tuple[np.ndarray, np.ndarray]:
         """World pose (pos (3,), quat (4,) w-x-y-z) where a body attached at ``end`` belongs.
@@ -289,7 +307,9 @@ class WireHandle(ABC):
         for end, node, frame in (("start", nodes[0], frames[0]), ("end", nodes[-1], frames[-1])):
             _, lquat = self.end_pose_local(end)
             quat = _quat_mul(frame, lquat)
-            poses[end] = (node.copy(), quat / np.linalg.norm(quat))
+            quat /= np.linalg.norm(quat)
+            # the body's +x points away from the wire: the gap lies along it
+            poses[end] = (node + self.end_gap * _rotate(quat, np.array([1.0, 0.0, 0.0])), quat)
         return poses
 
     # -- model-specific hooks --------------------------------------------------------------------

@@ -27,7 +27,13 @@ import mujoco
 import numpy as np
 
 from wirecraft.assets.wires import shape
-from wirecraft.assets.wires.base import FLEX, WIRE_MODELS, WireHandle, set_slide_bodies
+from wirecraft.assets.wires.base import (
+    END_CLEARANCE,
+    FLEX,
+    WIRE_MODELS,
+    WireHandle,
+    set_slide_bodies,
+)
 
 
 @WIRE_MODELS.register("fem")
@@ -58,6 +64,15 @@ class FemWire(WireHandle):
         return self.config.radius * (3.0 * math.pi) ** 0.25
 
     @property
+    def flex_radius(self) -> float:
+        """m the collision surface reaches beyond the nodes: pads the square out to the radius."""
+        return self.config.radius - self.side / 2
+
+    @property
+    def end_gap(self) -> float:
+        return self.flex_radius + END_CLEARANCE
+
+    @property
     def locking_factor(self) -> float:
         c = self.config
         aspect = (c.length / self.cells) / self.side
@@ -80,7 +95,7 @@ class FemWire(WireHandle):
         xml = (
             f'<flexcomp name="{FLEX}" type="grid" dim="3" dof="trilinear" '
             f'cellcount="{self.cells} 1 1" count="{n} 2 2" '
-            f'spacing="{seg:.9g} {s:.9g} {s:.9g}" radius="{c.radius - s / 2:.9g}" '
+            f'spacing="{seg:.9g} {s:.9g} {s:.9g}" radius="{self.flex_radius:.9g}" '
             f'mass="{c.mass:.9g}" POSE rgba="{rgba}">'
             '<edge equality="false"/>'
             f'<elasticity young="{self.flex_young:.9g}" poisson="{c.poisson:g}" '

@@ -16,6 +16,7 @@ import numpy as np
 from wirecraft.assets.wires.base import (
     ATTACH_SOLIMP,
     ATTACH_SOLREF,
+    END_CLEARANCE,
     FLEX,
     WIRE_MODELS,
     WireHandle,
@@ -44,6 +45,11 @@ class RodWire(WireHandle):
     @property
     def num_points(self) -> int:
         return self.config.segments + 1
+
+    @property
+    def end_gap(self) -> float:
+        # the end edge's capsule reaches one radius past the end vertex
+        return self.config.radius + END_CLEARANCE
 
     def body_name(self, vertex: int) -> str:
         return f"{self.flex_name}_{vertex}"
