@@ -4,11 +4,12 @@ What it reads (privileged; per environment ``env = env_or_envs.unwrapped``, neve
 success flags or ``fraction_inside``):
 
 - ``env.model`` / ``env.data``: the MuJoCo state of that environment;
-- ``env.task.assembly``: ``plug_pose(data)`` (plug origin: the wire end at the back of the
-  tail) and the ``grasp_site`` (middle of the tail); ``wire.config.radius``;
+- ``env.task.assembly``: ``plug_pose(data)`` (plug origin at the back of the tail; the wire
+  ends ``wire.end_gap`` behind it) and the ``grasp_site`` (middle of the tail);
+  ``wire.config.radius``;
 - ``env.task``: ``placed`` (the channel of this episode: ``pos``, ``yaw`` and ``config`` with
   its ``centerline``, ``floor`` and ``wall_height``), ``plug_lead`` (wire between the
-  channel's end and the plug when seated), ``tcp_site`` and
+  channel's end and the wire's end when seated), ``tcp_site`` and
   ``pad_contacts(model, data, held_contacts)`` (both pads on the plug), ``pads`` and
   ``assembly.wire_contacts`` (the contact normals between them, once, at the release's end);
 - ``env.robot``: ``tcp_pose_base(model, data)``, ``gripper_opening``, ``gripper_velocity``,
@@ -239,9 +240,11 @@ class SeatingExpert(ScriptedExpert):
         env = self.envs[i]
         return env.robot.tcp_pose_base(env.model, env.data)
 
-    def _plug_origin(self, i):
-        env = self.envs[i]
-        return self._to_base(i, env.task.assembly.plug_pose(env.data)[0])
+    def _wire_end(self, i):
+        """Base-frame end point of the wire, on the plug's axis end_gap behind its origin."""
+        assembly = self.envs[i].task.assembly
+        pos, rot = assembly.plug_pose(self.envs[i].data)
+        return self._to_base(i, pos - assembly.wire.end_gap * rot[:, 0])
 
     def _held(self, i) -> bool:
         env = self.envs[i]
@@ -329,13 +332,13 @@ class SeatingExpert(ScriptedExpert):
             goal = start + (cfg.lift - self._height(i, start)) * up
             return goal, None, cfg.lift_speed, 1.0, None
 
-        # From here on the goals place the plug's wire end; the TCP keeps its offset to it
+        # From here on the goals place the wire's end; the TCP keeps its offset to it
         # (re-measured each step in the TCP frame: the plug may turn in the pads) and turns
         # so that the pads' long side, along which the plug is held, follows the channel's
         # last segment: the wire leaves the plug along the channel, between the pads.
         tcp, tcp_rot = self._tcp(i)
         rot = self._yawed(i, self._lay_yaw(i)) if cfg.lay_turn else tcp_rot
-        offset = rot @ tcp_rot.T @ (tcp - self._plug_origin(i))
+        offset = rot @ tcp_rot.T @ (tcp - self._wire_end(i))
         rot = rot if cfg.lay_turn else None
         _, arc = self._path(i)
         lay_start = arc[-1] - cfg.lay_from

@@ -9,9 +9,12 @@ Scene
     The channel's entry is at x = 0.20 m, y = 0 and it runs along -x, towards the robot; its
     five segments are together as long as the wire minus ``CLAMP_BACK`` + ``PLUG_LEAD`` (0.37 m
     for the 0.4 m wire), so a seated wire ends ``PLUG_LEAD`` past the channel's end and the
-    plug (wider than the channel) lies beyond it on the table.  The clamp is static (no joint):
-    its wire exit is on the channel's axis ``CLAMP_BACK`` before the entry, at the height of a
-    wire resting on the channel floor, and the wire leaves it along the channel.
+    plug (wider than the channel) lies beyond it on the table.  (A flex wire starts and ends
+    ``end_gap`` away from the bodies on its ends, wires/base.py: seated, it ends that much
+    farther past the channel's end; the task's ``plug_lead`` includes it.)  The clamp is
+    static (no joint): its wire exit is on the channel's axis ``CLAMP_BACK`` before the entry,
+    at the height of a wire resting on the channel floor, and the wire leaves it along the
+    channel.
 
 Randomizations (each reset, from the reset seed)
     Channel: fixed position.  Curved: each of the 4 joints bends by a uniform +/-20 deg,
@@ -119,6 +122,9 @@ class SeatingTask(Task):
         self.channel = add_segmented_channel(
             spec, channel, name="channel", pos=CHANNEL_ENTRY, yaw=CHANNEL_YAW
         )
+        # A flex wire starts end_gap out of the clamp's exit (wires/base.py): seated, it ends
+        # that much farther past the channel's end.
+        self.plug_lead = PLUG_LEAD + self.assembly.wire.end_gap
 
     def bind(self, model, robot) -> None:
         super().bind(model, robot)
