@@ -6,8 +6,10 @@
 Each episode is reset with its seed (first-seed, first-seed + 1, ...) and run to the end (the
 task's length by default: 8 s = 480 control steps per clip); "success at the end" is the
 task's ``success`` on the last step, "at some step" whether it was ever true.  Failures list
-the seed, the clips routed at the end, the expert's phase and clip, and how often it routed
-each clip.  ``--set`` overrides ``RoutingExpertConfig`` fields, for comparing variants.
+the seed, the clips routed at the end, the expert's phase and clip, how often it routed each
+clip, and the step at which the physics diverged, if it did (the environment then rolls the
+step back and truncates the episode); the summary counts divergences.  ``--set`` overrides
+``RoutingExpertConfig`` fields, for comparing variants.
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ def main() -> None:
         episode_seconds=args.episode_seconds,
     )
     expert = RoutingExpert(env, RoutingExpertConfig(**overrides))
-    ends, anys, failures = [], [], []
+    ends, anys, failures, diverged = [], [], [], []
     start = time.time()
     seeds = range(args.first_seed, args.first_seed + args.episodes)
     for seed in tqdm(seeds, desc=f"routing {args.num_clips} clip(s)", disable=args.verbose):
@@ -73,11 +75,13 @@ def main() -> None:
                 break
         ends.append(bool(info["success"]))
         anys.append(first is not None)
+        diverged.append(bool(info["diverged"]))
         if not info["success"]:
             failures.append(
                 f"seed {seed}: routed {info['clips_routed']}/{args.num_clips}, "
                 f"phase {expert.phase_names[0]}, clip {expert.clip[0]}, "
                 f"routings per clip {expert.tries[0, : args.num_clips].tolist()}"
+                + (f", diverged at step {step}" if info["diverged"] else "")
             )
         if args.verbose:
             print(
@@ -89,7 +93,7 @@ def main() -> None:
     print(
         f"{args.robot} {args.wire}, {args.num_clips} clip(s): success at the end "
         f"{np.mean(ends):.0%} ({sum(ends)}/{len(ends)}), at some step {np.mean(anys):.0%}, "
-        f"seeds {args.first_seed}-{args.first_seed + args.episodes - 1} "
+        f"{sum(diverged)} diverged, seeds {args.first_seed}-{args.first_seed + args.episodes - 1} "
         f"({time.time() - start:.0f} s)"
     )
 
