@@ -1,4 +1,5 @@
-"""Wire + connector assemblies: every wire model with every plug falls, lands and settles."""
+"""Wire + connector assemblies: every wire model with every plug falls, lands and settles; the
+plug goes where an episode asks for it."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import mujoco
 import numpy as np
 import pytest
 
+import wirecraft
 from wirecraft.assets.connectors import CONNECTORS, add_plug, make_connector
 from wirecraft.assets.wires import WIRE_MODELS, WireConfig, add_wire
 from wirecraft.scene import add_table, compile_spec, new_spec
@@ -61,3 +63,24 @@ def test_wire_with_plug_falls_and_settles(wire_model, connector):
     plug_x = data.xmat[plug].reshape(3, 3)[:, 0]
     off = np.linalg.norm(points[-1] + wire.end_gap * plug_x - data.site_xpos[wire_site])
     assert off < 2e-3, f"wire end {off * 1000:.1f} mm from where the plug holds it"
+
+
+@pytest.mark.parametrize("wire_model", WIRE_MODELS.names())
+def test_place_puts_the_plug_where_asked_and_the_wire_behind_it(wire_model):
+    """``place`` lays the cable straight and puts the plug's origin at the requested point (or
+    straight above it, lifted clear of the table); the wire ends ``end_gap`` behind it."""
+    env = wirecraft.make("insertion", wire=wire_model)
+    env.reset(seed=0)
+    u = env.unwrapped
+    assembly = u.task.assembly
+    axis = np.array([0.0, 1.0, 0.0])
+    asked = np.array([0.45, 0.05, 0.05])
+    placed = assembly.place(u.model, u.data, asked, axis, 0.0)
+    np.testing.assert_allclose(placed[:2], asked[:2], atol=1e-9)
+    plug_pos, plug_rot = assembly.plug_pose(u.data)
+    np.testing.assert_allclose(plug_pos, placed, atol=1e-6)
+    np.testing.assert_allclose(plug_rot[:, 0], axis, atol=1e-6)
+    points = assembly.wire.points(u.model, u.data)
+    np.testing.assert_allclose(points[-1], placed - assembly.wire.end_gap * axis, atol=1e-4)
+    length = np.linalg.norm(np.diff(points, axis=0), axis=1).sum()
+    assert length == pytest.approx(assembly.wire.config.length, rel=1e-3)

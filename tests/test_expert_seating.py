@@ -104,6 +104,30 @@ def test_hand_laid_wire_counts_as_seated_and_stays(channel):
     assert info["fraction_inside"] == pytest.approx(channel_share, abs=0.05)
 
 
+@pytest.mark.parametrize("wire", ["articulated", "rod"])
+def test_a_seated_wire_ends_plug_lead_past_the_channel(wire):
+    """Laid from the clamp along the straight channel's floor, the wire ends ``plug_lead`` past
+    the channel's end (what the expert aims the wire's end at) and the plug sits on its end,
+    ``end_gap`` beyond it: a flex wire starts that gap out of the clamp, too."""
+    env = wirecraft.make("seating", channel="straight", wire=wire)
+    env.reset(seed=3)
+    task, model, data = env.unwrapped.task, env.unwrapped.model, env.unwrapped.data
+    wire_handle = task.assembly.wire
+    path = channel_path(task, wire_handle.config.radius + 0.0005)
+    task.assembly.lay_from_clamp(model, data, path)
+    points = wire_handle.points(model, data)
+    # the straight channel's end, at the height the wire was laid
+    channel_end = path[-1]
+    lead = float(np.linalg.norm(points[-1] - channel_end))
+    assert lead == pytest.approx(task.plug_lead, abs=0.002)
+    start_gap = float(np.linalg.norm(points[0] - task.clamp_exit))
+    assert start_gap == pytest.approx(wire_handle.end_gap, abs=0.001)
+    plug_pos, plug_rot = task.assembly.plug_pose(data)
+    np.testing.assert_allclose(
+        plug_pos, points[-1] + wire_handle.end_gap * plug_rot[:, 0], atol=0.001
+    )
+
+
 def test_wire_beside_the_channel_does_not_count():
     """A wire lying on the table 3 cm beside the channel, parallel to it, is not seated."""
     env = wirecraft.make("seating", channel="straight")
