@@ -11,6 +11,7 @@ import wirecraft
 from wirecraft.assets.connectors import CONNECTORS, add_plug, make_connector
 from wirecraft.assets.wires import WIRE_MODELS, WireConfig, add_wire
 from wirecraft.scene import add_table, compile_spec, new_spec
+from wirecraft.tasks.assembly import WireAssembly
 
 FALL_SECONDS = 10.0
 SETTLED_AFTER = 9.0  # s: the last second must be calm
@@ -103,3 +104,16 @@ def test_no_plug_touches_its_own_wire_as_built(wire_model, connector):
         if plug in (model.geom_bodyid[g] for g in c.geom if g >= 0)
     ]
     assert wire_contacts == [], [(c.geom, c.flex, c.elem, c.dist) for c in wire_contacts]
+
+
+@pytest.mark.parametrize("wire_model", WIRE_MODELS.names())
+def test_the_cable_as_built_touches_neither_its_plug_nor_its_clamp(wire_model):
+    """The tasks' cable (``WireAssembly``: clamp block, wire, plug), as built in the air: no
+    contact at all, so none between the wire and the bodies on its ends."""
+    spec = new_spec("cable")
+    WireAssembly.build(spec, WireConfig(model=wire_model), make_connector("ethernet"))
+    model = compile_spec(spec)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    touching = [(c.geom, c.flex, c.elem, c.dist) for c in data.contact[: data.ncon]]
+    assert touching == []
