@@ -1,5 +1,5 @@
 """Wire + connector assemblies: every wire model with every plug falls, lands and settles; the
-plug goes where an episode asks for it."""
+plug goes where an episode asks for it; the bodies on the cable's ends do not touch its wire."""
 
 from __future__ import annotations
 
