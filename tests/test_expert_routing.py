@@ -424,8 +424,30 @@ def test_a_retry_grasps_at_a_joint_only_near_the_taut_length(beyond):
         ("trail_check", float("nan")),
         ("seated_early_steps", 0),
         ("seated_early_steps", 2.5),
+        ("carry_height", 0.0),
+        ("flex_carry_height", -0.03),
     ],
 )
 def test_refuses_bad_settings(field, value):
     with pytest.raises(ValueError, match=field):
         RoutingExpertConfig(**{field: value})
+
+
+@pytest.mark.parametrize("wire", ["articulated", "rod"])
+def test_a_wire_that_bends_anywhere_is_carried_lower(wire):
+    """The stretch ends at the carry height: 3.8 cm for the articulated wire's rigid links,
+    3.2 cm for the rod, which a higher carry bends up out of a clip it was seated in."""
+    env = wirecraft.make("routing", num_clips=1, wire=wire)
+    expert = RoutingExpert(env)
+    env.reset(seed=0)
+    expert.reset()
+    for _ in range(300):
+        env.step(expert.act()[0])
+        if expert.phase_names[0] == "pull_back":
+            break
+    assert expert.phase_names[0] == "pull_back"
+    cfg = expert.config
+    expected = cfg.carry_height if wire == "articulated" else cfg.flex_carry_height
+    tcp = env.unwrapped.data.site_xpos[env.unwrapped.task.tcp_site]
+    assert tcp[2] == pytest.approx(expected, abs=0.002)  # the table top is at z = 0
+    env.close()
