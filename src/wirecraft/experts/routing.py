@@ -38,7 +38,8 @@ base frame.
   slot axis (a stiff wire lifted and swung near a seated clip pries it out; over another clip
   that lies in the swing's path at the carry height, and so when the ``trail_check`` m of
   wire beyond the grasp lie near a later clip: dragged along low, that wire caught on the
-  clip's body and was pulled out of the pads), raise to the carry height,
+  clip's body and was pulled out of the pads), raise to the carry height (lower for a wire
+  that bends anywhere: carried higher, it bent up out of the clip it had been seated in),
   over-stretch along the frozen direction until the free wire is straight, pull back
   to the clip front on the slot axis, far side, correcting sideways until the wire crosses
   the clip's mid-plane over the slot centre, with the pads where they hold the link of the
