@@ -7,8 +7,8 @@ success flags or ``task.routed``):
 - ``env.wire_points()``: the wire's centre line (its nodes, clamp end first);
 - ``env.task``: ``placed_clips(data)`` (clip position, yaw and ``ClipConfig``),
   ``assembly.clamp`` (the clamp body, the first anchor), ``assembly.wire.config`` (radius,
-  length, ``segment_length``: the spacing of its nodes), ``assembly.wire_contacts`` with
-  ``pad_contacts(model, data, ...)`` (both pads on the wire);
+  length), ``assembly.wire_contacts`` with ``pad_contacts(model, data, ...)`` (both pads on the
+  wire);
 - ``env.robot``: ``tcp_pose_base(model, data)``, ``gripper_velocity``, ``max_opening``,
   ``pad_geom_names`` (the pads' geoms: where their ends are);
 - ``env.wrist_wrench()``: the wrist force/torque sensor (the push and the press stop on it);
@@ -380,7 +380,7 @@ class RoutingExpert(ScriptedExpert):
         articulated wire's 33 mm capsules against 12 mm), not of short pieces that bend
         anywhere (rod, FEM)."""
         env = self.envs[i]
-        link = env.task.assembly.wire.config.segment_length  # m between centre-line nodes
+        link = np.median(np.linalg.norm(np.diff(env.wire_points(), axis=0), axis=1))
         return bool(link >= env.task.placed_clips(env.data)[self.clip[i]].config.length)
 
     def _carry_height(self, i) -> float:
