@@ -1,7 +1,14 @@
 """Success of the seating expert over seeds, per channel shape:
 python benchmarks/eval_seating_expert.py --channels straight,curved --seeds 100
 [--wire articulated] [--robot ur5] [--first-seed 0] [--verbose] [--set lay_turn=false ...]
-(``--set`` overrides ``SeatingExpertConfig`` fields, for comparing variants)."""
+[--chained-expert-seed N]
+(``--set`` overrides ``SeatingExpertConfig`` fields, for comparing variants).
+
+Each episode's expert draws its diversity (settle delay, lay slow-down) from the episode's
+seed, as ``wirecraft collect`` does: an episode depends on its seed only, so a failing seed
+replays alone (``--first-seed S --seeds 1``).  ``--chained-expert-seed N`` instead runs one
+expert whose generator, seeded N, goes on from episode to episode: the protocol of the
+figures measured before 24 Nov 2026 (N = 0)."""
 
 from __future__ import annotations
 
@@ -50,7 +57,7 @@ def main() -> None:
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--robot", default="ur5")
     parser.add_argument("--wire", default="articulated")
-    parser.add_argument("--expert-seed", type=int, default=0)
+    parser.add_argument("--chained-expert-seed", type=int, default=None)
     parser.add_argument("--verbose", action="store_true")
     parser.add_argument(
         "--set",
@@ -71,11 +78,15 @@ def main() -> None:
             wire=args.wire,
             control=SeatingExpert.CONTROL,
         )
-        expert = SeatingExpert(env, SeatingExpertConfig(seed=args.expert_seed, **overrides))
+        chained = args.chained_expert_seed
+        if chained is not None:
+            expert = SeatingExpert(env, SeatingExpertConfig(seed=chained, **overrides))
         start = time.time()
         episodes = []
         seeds = range(args.first_seed, args.first_seed + args.seeds)
         for seed in tqdm(seeds, desc=channel, disable=args.verbose):
+            if chained is None:
+                expert = SeatingExpert(env, SeatingExpertConfig(seed=seed, **overrides))
             ep = run_episode(env, expert, seed, args.verbose)
             episodes.append(ep)
             if args.verbose or not ep["success"]:
