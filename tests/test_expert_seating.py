@@ -21,11 +21,11 @@ from wirecraft.experts.seating import SeatingExpert, SeatingExpertConfig
 EPISODE_STEPS = 480
 
 
-def run(channel: str, seed: int):
+def run(channel: str, seed: int, config: SeatingExpertConfig | None = None):
     """One episode of the expert; also the largest turn (deg) of the TCP about the vertical
     from its start orientation while the pressing pad is down (measured on the TCP site)."""
     env = wirecraft.make("seating", channel=channel, control=SeatingExpert.CONTROL)
-    expert = SeatingExpert(env)
+    expert = SeatingExpert(env, config)
     obs, info = env.reset(seed=seed)
     expert.reset()
     u = env.unwrapped
@@ -275,6 +275,18 @@ def test_presses_the_wire_into_the_curved_channel(seed):
         assert turn > 16.0
 
 
+@pytest.mark.slow
+def test_tucks_a_wire_that_sprang_out_beside_the_channel():
+    """Curved seed 51 (expert seeded 51, as ``wirecraft collect`` seeds it): released, the
+    wire's middle springs ~25 mm out over the board on the inside of the channel's bend, where
+    the pressing pad never touched it (it ended 17 % inside).  The tuck pushes it back across
+    the channel first, and the pass then seats it."""
+    info, _, phases, expert, _ = run("curved", 51, SeatingExpertConfig(seed=51))
+    assert {"tuck_approach", "tuck_descend", "tuck_push", "tuck_retreat", "press"} <= phases
+    assert not info["diverged"]
+    assert info["success"] and info["fraction_inside"] >= 0.8
+
+
 def test_press_passes_follow_their_directions():
     """A pass runs from the entry side to the end side (+1) or back (-1), between the same two
     arcs; no more passes than directions."""
@@ -336,6 +348,52 @@ def test_later_pass_covers_only_the_raised_stretch(monkeypatch):
     assert start == pytest.approx(0.15 - cfg.press_lead_in, abs=0.004)
     assert stop == pytest.approx(0.22 + cfg.press_lead_out, abs=0.004)
     assert full[0] <= start < stop <= full[1]
+
+
+def test_a_wire_sprung_out_over_the_walls_calls_for_a_tuck(monkeypatch):
+    """A stretch of wire lying 25 mm beside the curved channel, its centre above the pad's
+    bottom at the wall tops, calls for a tuck: the pad comes down on the wire's far side from
+    the channel (its face ``tuck_margin`` beyond the wire) to push it back over the centre
+    line.  A wire in the channel, one beside it below the wall tops (a pad above the walls
+    cannot reach it) and one only a little outside the walls call for none."""
+    env, expert = curved_expert()
+    u = env.unwrapped
+    cfg, task = expert.config, u.task
+    radius = task.assembly.wire.config.radius
+    channel = task.placed.config
+    above = channel.wall_height + cfg.press_clearance + radius  # centre height over the floor
+
+    def lay(points):
+        monkeypatch.setattr(u, "wire_points", lambda: points.copy())
+
+    lay(channel_path(task, radius)[1:])
+    assert not expert._needs_tuck(0)
+    lay(channel_path(task, radius, offset=0.025))
+    assert not expert._needs_tuck(0)
+    lay(channel_path(task, above, offset=channel.inner_width / 2 + cfg.tuck_outside - 0.002))
+    assert not expert._needs_tuck(0)
+
+    lay(channel_path(task, above, offset=0.025))
+    assert expert._needs_tuck(0)
+    path, arc = expert._path(0)
+    end = arc[-1] - task.plug_lead - cfg.press_stop
+    assert cfg.press_from < expert.tuck_arc[0] < end
+    k = int(np.argmin(np.abs(arc - expert.tuck_arc[0])))
+    tangent = path[k + 1, :2] - path[k - 1, :2]
+    left = np.array([-tangent[1], tangent[0]]) / np.linalg.norm(tangent)
+    start = expert.tuck_from[0, :2] - path[k, :2]
+    _, (_, half_short), _ = expert._pad_frame(0)
+    reach = 0.025 + radius + half_short + cfg.tuck_margin
+    assert start @ left == pytest.approx(reach, abs=0.002)  # on the wire's side, beyond it
+    assert np.linalg.norm(start) == pytest.approx(reach, abs=0.002)
+
+
+@pytest.mark.parametrize("field", ["tuck_outside", "tuck_margin"])
+def test_bad_tuck_settings_are_refused(field):
+    with pytest.raises(ValueError, match=field):
+        SeatingExpertConfig(**{field: -0.001})
+    with pytest.raises(ValueError, match="tuck_speed"):
+        SeatingExpertConfig(tuck_speed=0.0)
 
 
 def test_place_ends_when_the_tcp_stops():
