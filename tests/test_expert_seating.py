@@ -355,7 +355,9 @@ def test_a_wire_sprung_out_over_the_walls_calls_for_a_tuck(monkeypatch):
     bottom at the wall tops, calls for a tuck: the pad comes down on the wire's far side from
     the channel (its face ``tuck_margin`` beyond the wire) to push it back over the centre
     line.  A wire in the channel, one beside it below the wall tops (a pad above the walls
-    cannot reach it) and one only a little outside the walls call for none."""
+    cannot reach it) and one only a little outside the walls call for none; nor does any
+    while the plug hangs between the open fingers, above the pads' bottoms (a tuck dragged it
+    along)."""
     env, expert = curved_expert()
     u = env.unwrapped
     cfg, task = expert.config, u.task
@@ -374,7 +376,16 @@ def test_a_wire_sprung_out_over_the_walls_calls_for_a_tuck(monkeypatch):
     assert not expert._needs_tuck(0)
 
     lay(channel_path(task, above, offset=0.025))
+    assert expert._needs_tuck(0)  # the plug lies on the board, far below the pads
+    tuck_from = expert.tuck_from[0].copy()
+    pos, rot = task.assembly.plug_pose(u.data)
+    pads_bottom = min(expert._pad_target_world(0, pad)[2] for pad in (0, 1))
+    flung = pos + [0.0, 0.0, pads_bottom + 0.005 - pos[2]]  # up between the open fingers
+    monkeypatch.setattr(task.assembly, "plug_pose", lambda data: (flung, rot))
+    assert not expert._needs_tuck(0)
+    monkeypatch.setattr(task.assembly, "plug_pose", lambda data: (pos, rot))
     assert expert._needs_tuck(0)
+    np.testing.assert_allclose(expert.tuck_from[0], tuck_from)
     path, arc = expert._path(0)
     end = arc[-1] - task.plug_lead - cfg.press_stop
     assert cfg.press_from < expert.tuck_arc[0] < end
@@ -386,6 +397,12 @@ def test_a_wire_sprung_out_over_the_walls_calls_for_a_tuck(monkeypatch):
     reach = 0.025 + radius + half_short + cfg.tuck_margin
     assert start @ left == pytest.approx(reach, abs=0.002)  # on the wire's side, beyond it
     assert np.linalg.norm(start) == pytest.approx(reach, abs=0.002)
+    # The pushing pad is the one on the channel's side of the TCP: the other comes down
+    # farther out, so the wire never lies between the open pads.
+    tcp = u.data.site_xpos[task.tcp_site][:2]
+    pusher = int(expert.tuck_pad[0])
+    outward = [(expert._pad_target_world(0, pad)[:2] - tcp) @ left for pad in (0, 1)]
+    assert outward[1 - pusher] > outward[pusher] + 0.01
 
 
 @pytest.mark.parametrize("field", ["tuck_outside", "tuck_margin"])

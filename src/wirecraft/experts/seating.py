@@ -74,16 +74,18 @@ plug; where the channel bends away from that line, the wire's middle stretch lie
 beside the channel, over the board, and a pad following the channel's centre line never
 touched it).  When an inner wire point between ``press_from`` and the pass's end lies more
 than ``tuck_outside`` outside the inner walls, its centre above ``press_clearance`` over the
-wall tops (lower, it leans on the wall's outside, out of reach of a pad above the walls), the
+wall tops (lower, it leans on the wall's outside, out of reach of a pad above the walls), a
 pad comes down beside the farthest such point on its far side from the channel
 (``tuck_margin`` beyond the wire), pushes it at ``tuck_speed`` across to the channel's centre
 line (or until the pad stops) and rises: tuck_approach -> tuck_descend -> tuck_push ->
-tuck_retreat -> the pressing pass.  The TCP keeps its orientation (turning at the controller's
-0.01 rad per step cost ~30 steps more) and does not press the wire down there (~30 steps more;
-the pass does it): ~40 steps in all.  A first version that did both cost ~150 steps and ran
-seeds that had succeeded out of time.  Curved tuning seeds 0-99 (each expert seeded with its
-episode's seed): 98 % seated at some step, against 91 % without the tuck on the 76 of them
-measured (docs/experts.md).
+tuck_retreat -> the pressing pass.  The pushing pad is the one on the channel's side of the
+TCP, so the other comes down farther out and the wire never lies between the open pads.  No
+tuck while the plug, flung up as the wire sprang, hangs between the open fingers (above the
+pads' bottoms): moving the pads then dragged it along and folded the wire into a hairpin.
+The TCP keeps its orientation (turning at the controller's 0.01 rad per step cost ~30 steps
+more) and does not press the wire down there (~30 steps more; the pass does it): ~40 steps
+in all.  A first version that did both cost ~150 steps and ran seeds that had succeeded out
+of time.  Measured in docs/experts.md ("The tuck").
 
 ``lay_turn`` (off; tried) also turns the held plug onto the channel's last segment during
 carry, lay and place: worse (5 failures in the first 26 tuning seeds against 3 in 50), and the
@@ -258,6 +260,7 @@ class SeatingExpert(ScriptedExpert):
         self._profiles: list = [None] * self.num_envs
         self.tuck_arc = np.zeros(self.num_envs)  # arc of the channel where the tuck pushes
         self.tuck_from = np.zeros((self.num_envs, 3))  # world pad-bottom start of the push
+        self.tuck_pad = np.zeros(self.num_envs, int)  # the pad that pushes (robot.pad_geom_names)
 
     def _reset_state(self, mask) -> None:
         cfg, count = self.config, int(mask.sum())
@@ -409,21 +412,22 @@ class SeatingExpert(ScriptedExpert):
             # The TCP keeps its orientation (no time spent turning): the pad moves as it is.
             opened = self._open_command(i, cfg.press_open)
             push_z = self._wall_top(i) + cfg.press_clearance
+            pad = int(self.tuck_pad[i])
             if name == "tuck_approach":
                 goal = self.tuck_from[i] + (self._wall_top(i) + cfg.press_travel) * UP
-                return self._pad_to_tcp_now(i, goal), None, cfg.approach_speed, opened, None
+                return self._pad_to_tcp_now(i, goal, pad), None, cfg.approach_speed, opened, None
             if name == "tuck_descend":
                 goal = self.tuck_from[i] + push_z * UP
-                return self._pad_to_tcp_now(i, goal), None, cfg.descend_speed, opened, None
+                return self._pad_to_tcp_now(i, goal, pad), None, cfg.descend_speed, opened, None
             middle = self._press_target(i, self.tuck_arc[i])
             if name == "tuck_push":
                 middle[2] = push_z
-                tcp = self._pad_to_tcp_now(i, middle)
+                tcp = self._pad_to_tcp_now(i, middle, pad)
                 stalled = self._steps_still(i, self._tcp(i)[0], cfg.place_stall_distance)
                 done = True if stalled >= cfg.place_stall_steps else None
                 return tcp, None, cfg.tuck_speed, opened, done
             middle[2] = self._wall_top(i) + cfg.press_travel
-            return self._pad_to_tcp_now(i, middle), None, cfg.approach_speed, opened, None
+            return self._pad_to_tcp_now(i, middle, pad), None, cfg.approach_speed, opened, None
         if name in ("press_approach", "press_descend", "press"):
             start, stop = self._press_span(i)
             opened = self._open_command(i, cfg.press_open)
@@ -507,13 +511,14 @@ class SeatingExpert(ScriptedExpert):
         up = self._up(i)
         return axis_angle_to_mats((yaw * up)[None])[0] @ self._start_rot(i)
 
-    def _pad_frame(self, i):
-        """The pressing pad (the first of ``robot.pad_geom_names``) in the TCP frame: its
-        bottom centre's offset from the TCP (3,) (it changes with the pad gap), the half
-        extents (long, short) of its bottom face and the direction of its long side (3,)."""
+    def _pad_frame(self, i, pad: int = 0):
+        """The pressing pad (``pad``: the first of ``robot.pad_geom_names`` by default) in the
+        TCP frame: its bottom centre's offset from the TCP (3,) (it changes with the pad gap),
+        the half extents (long, short) of its bottom face and the direction of its long side
+        (3,)."""
         env = self.envs[i]
         model, data = env.model, env.data
-        gid = model.geom(env.robot.pad_geom_names[0]).id
+        gid = model.geom(env.robot.pad_geom_names[pad]).id
         pad_rot = data.geom_xmat[gid].reshape(3, 3)
         size = model.geom_size[gid]
         tcp_world = data.site_xpos[env.task.tcp_site]
@@ -523,10 +528,10 @@ class SeatingExpert(ScriptedExpert):
         halves = (float(size[long]), float(size[1 - long]))
         return tcp_rot.T @ (bottom - tcp_world), halves, tcp_rot.T @ pad_rot[:, long]
 
-    def _pad_target_world(self, i) -> np.ndarray:
-        """World centre of the pressing pad's bottom face now."""
+    def _pad_target_world(self, i, pad: int = 0) -> np.ndarray:
+        """World centre of the pressing pad's (``pad``'s) bottom face now."""
         env = self.envs[i]
-        offset, _, _ = self._pad_frame(i)
+        offset, _, _ = self._pad_frame(i, pad)
         tcp_rot = env.data.site_xmat[env.task.tcp_site].reshape(3, 3)
         return env.data.site_xpos[env.task.tcp_site] + tcp_rot @ offset
 
@@ -538,12 +543,13 @@ class SeatingExpert(ScriptedExpert):
         tcp_world = pad_target_world - self._base(i)[1] @ rot @ offset
         return self._to_base(i, tcp_world), rot
 
-    def _pad_to_tcp_now(self, i, pad_target_world) -> np.ndarray:
-        """Base-frame TCP goal that brings the pressing pad's bottom centre to a world point
-        with the TCP's orientation as it is now."""
+    def _pad_to_tcp_now(self, i, pad_target_world, pad: int = 0) -> np.ndarray:
+        """Base-frame TCP goal that brings ``pad``'s bottom centre to a world point with the
+        TCP's orientation as it is now."""
         env = self.envs[i]
         tcp_world = env.data.site_xpos[env.task.tcp_site]
-        return self._to_base(i, pad_target_world - (self._pad_target_world(i) - tcp_world))
+        pad_now = self._pad_target_world(i, pad)
+        return self._to_base(i, pad_target_world - (pad_now - tcp_world))
 
     def _press_target(self, i, s: float):
         """World point for the pad's bottom centre at arc ``s``: on the path, at the seated
@@ -674,11 +680,18 @@ class SeatingExpert(ScriptedExpert):
     def _needs_tuck(self, i) -> bool:
         """Whether an inner wire point over the board beside the channel lies more than
         ``tuck_outside`` outside its inner walls, high enough that a pad just above the wall
-        tops pushes it (its centre above the pad's bottom): keeps the channel arc where the
-        farthest such point lies (``tuck_arc``) and the pad's start beside it
+        tops pushes it (its centre above the pad's bottom), while the plug lies below the
+        pads' bottoms: keeps the channel arc where the farthest such point lies
+        (``tuck_arc``), the pad that pushes (``tuck_pad``) and its start beside the wire
         (``tuck_from``)."""
         cfg, env = self.config, self.envs[i]
         task = env.task
+        plug_z = task.assembly.plug_pose(env.data)[0][2]
+        if plug_z > min(self._pad_target_world(i, pad)[2] for pad in (0, 1)):
+            # The plug, flung up as the wire sprang, hangs between the open fingers: a tuck
+            # would drag it along and fold the wire into a hairpin (validation seeds 2002,
+            # 2025).  The pressing pass travels away from it instead.
+            return False
         world = env.wire_points()[1:-1]
         path, arc = self._path(i)
         end = arc[-1] - task.plug_lead - cfg.press_stop
@@ -698,8 +711,14 @@ class SeatingExpert(ScriptedExpert):
         if not ok.any():
             return False
         k = int(np.flatnonzero(ok)[np.argmax(distance[ok])])
-        _, (_, half_short), _ = self._pad_frame(i)
         side = offset[k] / distance[k]
+        # The pushing pad is the one on the channel's side of the TCP: the other one then
+        # comes down farther out, and the wire never lies between the open pads (it was caught
+        # there and lifted into a hairpin).
+        tcp = env.data.site_xpos[task.tcp_site][:2]
+        inward = [-(self._pad_target_world(i, pad)[:2] - tcp) @ side for pad in (0, 1)]
+        self.tuck_pad[i] = int(np.argmax(inward))
+        _, (_, half_short), _ = self._pad_frame(i, int(self.tuck_pad[i]))
         reach = distance[k] + radius + half_short + cfg.tuck_margin
         self.tuck_arc[i] = arc[nearest[k]]
         self.tuck_from[i] = np.append(path[nearest[k], :2] + reach * side, 0.0)
