@@ -411,6 +411,26 @@ def test_bad_tuck_settings_are_refused(field):
         SeatingExpertConfig(**{field: -0.001})
     with pytest.raises(ValueError, match="tuck_speed"):
         SeatingExpertConfig(tuck_speed=0.0)
+    with pytest.raises(ValueError, match="tuck_wires"):
+        SeatingExpertConfig(tuck_wires=("articulated", "cable"))
+
+
+def test_the_tuck_is_used_on_the_wire_models_it_names(monkeypatch):
+    """The tuck helped the articulated wire and not the rod (held out), so by default only the
+    articulated wire gets one: a rod lying 25 mm beside the channel above the wall tops calls
+    for none, unless ``tuck_wires`` names the rod."""
+    for tuck_wires, expected in ((("articulated",), False), (("articulated", "rod"), True)):
+        env = wirecraft.make("seating", channel="curved", wire="rod", control="cartesian")
+        expert = SeatingExpert(env, SeatingExpertConfig(tuck_wires=tuck_wires))
+        env.reset(seed=0)
+        expert.reset()
+        u = env.unwrapped
+        cfg, task = expert.config, u.task
+        height = task.placed.config.wall_height + cfg.press_clearance
+        beside = channel_path(task, height + task.assembly.wire.config.radius, offset=0.025)
+        monkeypatch.setattr(u, "wire_points", lambda points=beside: points.copy())
+        assert expert._needs_tuck(0) is expected
+        env.close()
 
 
 def test_place_ends_when_the_tcp_stops():
