@@ -85,7 +85,9 @@ pads' bottoms): moving the pads then dragged it along and folded the wire into a
 The TCP keeps its orientation (turning at the controller's 0.01 rad per step cost ~30 steps
 more) and does not press the wire down there (~30 steps more; the pass does it): ~40 steps
 in all.  A first version that did both cost ~150 steps and ran seeds that had succeeded out
-of time.  Measured in docs/experts.md ("The tuck").
+of time.  Only the wire models in ``tuck_wires`` get a tuck (by default the articulated wire,
+which it was built for; the rod did no better with it).  Measured in docs/experts.md ("The
+tuck").
 
 ``lay_turn`` (off; tried) also turns the held plug onto the channel's last segment during
 carry, lay and place: worse (5 failures in the first 26 tuning seeds against 3 in 50), and the
