@@ -405,14 +405,18 @@ def test_a_wire_sprung_out_over_the_walls_calls_for_a_tuck(monkeypatch):
     assert outward[1 - pusher] > outward[pusher] + 0.01
 
 
-@pytest.mark.parametrize("field", ["tuck_outside", "tuck_margin"])
-def test_bad_tuck_settings_are_refused(field):
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("tuck_outside", -0.001),
+        ("tuck_margin", -0.001),
+        ("tuck_speed", 0.0),
+        ("tuck_wires", ("articulated", "cable")),
+    ],
+)
+def test_bad_tuck_settings_are_refused(field, value):
     with pytest.raises(ValueError, match=field):
-        SeatingExpertConfig(**{field: -0.001})
-    with pytest.raises(ValueError, match="tuck_speed"):
-        SeatingExpertConfig(tuck_speed=0.0)
-    with pytest.raises(ValueError, match="tuck_wires"):
-        SeatingExpertConfig(tuck_wires=("articulated", "cable"))
+        SeatingExpertConfig(**{field: value})
 
 
 def test_the_tuck_is_used_on_the_wire_models_it_names(monkeypatch):
@@ -443,12 +447,12 @@ def test_place_ends_when_the_tcp_stops():
     verdicts = []
     for k in range(cfg.place_stall_steps + 1):
         expert.fsm.steps[0] = k
-        verdicts.append(expert._place_stalled(0, tcp + [0.0, 0.0, 0.00005 * k]))  # 0.05 mm a step
+        verdicts.append(expert._stalled(0, tcp + [0.0, 0.0, 0.00005 * k]))  # 0.05 mm a step
     assert verdicts[:-1] == [None] * cfg.place_stall_steps and verdicts[-1] is True
     moving = []
     for k in range(3 * cfg.place_stall_steps):
         expert.fsm.steps[0] = k
-        moving.append(expert._place_stalled(0, tcp + [0.0, 0.0, 0.002 * k]))  # 2 mm a step
+        moving.append(expert._stalled(0, tcp + [0.0, 0.0, 0.002 * k]))  # 2 mm a step
     assert moving == [None] * len(moving)
 
 

@@ -178,8 +178,7 @@ class SeatingExpertConfig:
     press_lead_in: float = 0.04  # m of arc
     press_lead_out: float = 0.02  # m of arc
     # Tuck (before the pressing pass): where the released wire has sprung out sideways over
-    # the walls, the pad comes down beside it, pushes it back over the channel and presses it
-    # onto the floor.
+    # the walls, a pad comes down beside it and pushes it back over the channel.
     tuck: bool = True
     # Wire models the tuck is used on.  It was built for, and helps, the articulated wire's
     # rigid links (held out: 92 -> 96 %); on the rod it did not (94 / 91 % with it against
@@ -404,7 +403,7 @@ class SeatingExpert(ScriptedExpert):
             return point + offset, rot, 2 * cfg.lay_speed, 1.0, bool(frac >= 1.0)
         if name == "place":
             point = self._path_point(i, arc[-1], seated)
-            return point + offset, rot, cfg.place_speed, 1.0, self._place_stalled(i, tcp)
+            return point + offset, rot, cfg.place_speed, 1.0, self._stalled(i, tcp)
         hold = fsm.get("hold_pos")[i]
         released = self._open_command(i, cfg.release_open)
         if name == "release":
@@ -432,9 +431,7 @@ class SeatingExpert(ScriptedExpert):
             if name == "tuck_push":
                 middle[2] = push_z
                 tcp = self._pad_to_tcp_now(i, middle, pad)
-                stalled = self._steps_still(i, self._tcp(i)[0], cfg.place_stall_distance)
-                done = True if stalled >= cfg.place_stall_steps else None
-                return tcp, None, cfg.tuck_speed, opened, done
+                return tcp, None, cfg.tuck_speed, opened, self._stalled(i, self._tcp(i)[0])
             middle[2] = self._wall_top(i) + cfg.press_travel
             return self._pad_to_tcp_now(i, middle, pad), None, cfg.approach_speed, opened, None
         if name in ("press_approach", "press_descend", "press"):
@@ -484,9 +481,11 @@ class SeatingExpert(ScriptedExpert):
         push = contact_push(env.data, pads, env.task.assembly.wire_contacts)
         return horizontal(self._base(i)[1].T @ push, self._up(i))
 
-    def _place_stalled(self, i, tcp) -> bool | None:
+    def _stalled(self, i, tcp) -> bool | None:
         """True once the TCP has stayed within ``place_stall_distance`` for
-        ``place_stall_steps`` steps of the place; None otherwise (the pose and dwell decide)."""
+        ``place_stall_steps`` steps of the current phase (the place: the plug rests on the
+        board; the tuck's push: the wire will go no farther); None otherwise (the pose and
+        dwell decide)."""
         cfg = self.config
         still = self._steps_still(i, tcp, cfg.place_stall_distance)
         return True if still >= cfg.place_stall_steps else None
@@ -686,6 +685,11 @@ class SeatingExpert(ScriptedExpert):
             )
         return inside
 
+    @staticmethod
+    def _nearest_path_index(path: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(K,) index of the path point nearest (horizontally) to each of ``points`` (K, 3)."""
+        return np.linalg.norm(points[:, None, :2] - path[None, :, :2], axis=2).argmin(1)
+
     def _needs_tuck(self, i) -> bool:
         """Whether an inner wire point over the board beside the channel lies more than
         ``tuck_outside`` outside its inner walls, high enough that a pad just above the wall
@@ -697,8 +701,9 @@ class SeatingExpert(ScriptedExpert):
         task = env.task
         if task.assembly.wire.config.model not in cfg.tuck_wires:
             return False
+        pads = [self._pad_target_world(i, pad) for pad in (0, 1)]
         plug_z = task.assembly.plug_pose(env.data)[0][2]
-        if plug_z > min(self._pad_target_world(i, pad)[2] for pad in (0, 1)):
+        if plug_z > min(pad[2] for pad in pads):
             # The plug, flung up as the wire sprang, hangs between the open fingers: a tuck
             # would drag it along and fold the wire into a hairpin (validation seeds 2002,
             # 2025).  The pressing pass travels away from it instead.
@@ -706,8 +711,7 @@ class SeatingExpert(ScriptedExpert):
         world = env.wire_points()[1:-1]
         path, arc = self._path(i)
         end = arc[-1] - task.plug_lead - cfg.press_stop
-        lateral = world[:, None, :2] - path[None, :, :2]
-        nearest = np.linalg.norm(lateral, axis=2).argmin(1)
+        nearest = self._nearest_path_index(path, world)
         offset = world[:, :2] - path[nearest, :2]
         distance = np.linalg.norm(offset, axis=1)
         push_z = self._wall_top(i) + cfg.press_clearance
@@ -727,7 +731,7 @@ class SeatingExpert(ScriptedExpert):
         # comes down farther out, and the wire never lies between the open pads (it was caught
         # there and lifted into a hairpin).
         tcp = env.data.site_xpos[task.tcp_site][:2]
-        inward = [-(self._pad_target_world(i, pad)[:2] - tcp) @ side for pad in (0, 1)]
+        inward = [-(pad[:2] - tcp) @ side for pad in pads]
         self.tuck_pad[i] = int(np.argmax(inward))
         _, (_, half_short), _ = self._pad_frame(i, int(self.tuck_pad[i]))
         reach = distance[k] + radius + half_short + cfg.tuck_margin
@@ -753,7 +757,7 @@ class SeatingExpert(ScriptedExpert):
         if not raised.any():
             return False
         path, arc = self._path(i)
-        nearest = np.linalg.norm(world[raised, None, :2] - path[None, :, :2], axis=2).argmin(1)
+        nearest = self._nearest_path_index(path, world[raised])
         self.raised_span[i] = arc[nearest].min(), arc[nearest].max()
         return True
 
