@@ -98,6 +98,14 @@ def test_overrides_parse_to_the_field_types():
     assert parse_override("close_pause=0,5", expert) == ("close_pause", (0, 5))
     with pytest.raises(ValueError, match="cannot read"):
         parse_override("close_pause=0.5,1", expert)
+    # a tuple of names reads as names (the config itself checks them)
+    from wirecraft.experts.seating import SeatingExpertConfig
+
+    seating = SeatingExpertConfig()
+    assert parse_override("tuck_wires=articulated, rod", seating) == (
+        "tuck_wires",
+        ("articulated", "rod"),
+    )
 
 
 # -- the rsl-rl adapter -------------------------------------------------------------------------

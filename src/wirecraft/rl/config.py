@@ -341,8 +341,8 @@ def config_from_dict(algorithm: str, values: dict[str, Any]):
 
 def parse_override(text: str, cfg) -> tuple[str, Any]:
     """``NAME=VALUE`` to a typed (name, value) for ``cfg``'s field ``NAME`` (any config
-    dataclass; lists: comma-separated, of the current tuple's element type; booleans:
-    true/false; none: None)."""
+    dataclass; lists: comma-separated, of the current tuple's element type (str, float or
+    int); booleans: true/false; none: None)."""
     if "=" not in text:
         raise ValueError(f"--set expects NAME=VALUE, got {text!r}")
     name, raw = (s.strip() for s in text.split("=", 1))
@@ -361,8 +361,11 @@ def parse_override(text: str, cfg) -> tuple[str, Any]:
                 raise ValueError
             return name, raw.lower() in ("true", "1")
         if isinstance(current, tuple):
-            element = float if any(isinstance(v, float) for v in current) else int
-            return name, tuple(element(v) for v in raw.split(",") if v.strip())
+            if any(isinstance(v, str) for v in current):
+                element = str
+            else:
+                element = float if any(isinstance(v, float) for v in current) else int
+            return name, tuple(element(v.strip()) for v in raw.split(",") if v.strip())
         if isinstance(current, int):
             return name, int(float(raw)) if "e" in raw.lower() else int(raw)
         if isinstance(current, float):
