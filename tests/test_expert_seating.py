@@ -308,6 +308,7 @@ def test_press_passes_follow_their_directions():
         ("press_lead_in", -0.01),
         ("press_lead_out", float("nan")),
         ("retreat_slide", -0.01),
+        ("seed", -1),  # the benchmark's --chained-expert-seed
     ],
 )
 def test_bad_stall_and_lead_settings_are_refused(field, value):

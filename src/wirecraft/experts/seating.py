@@ -210,6 +210,7 @@ class SeatingExpertConfig:
         for model in self.tuck_wires:
             validation.one_of(owner, "tuck_wires", model, WIRE_MODELS.names())
         validation.at_least_int(owner, "place_stall_steps", self.place_stall_steps, 1)
+        validation.at_least_int(owner, "seed", self.seed, 0)
 
 
 PHASES = (
