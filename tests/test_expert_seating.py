@@ -308,6 +308,9 @@ def test_press_passes_follow_their_directions():
         ("press_lead_in", -0.01),
         ("press_lead_out", float("nan")),
         ("retreat_slide", -0.01),
+        ("lay_wall_clearance", -0.001),
+        ("lay_wall_clearance", float("inf")),
+        ("lay_wall_reach", -0.001),
         ("seed", -1),  # the benchmark's --chained-expert-seed
     ],
 )
@@ -484,3 +487,61 @@ def test_retreat_slides_the_pads_off_the_wire_before_rising():
     wire below them (the stretch near the plug, raised by the lay, stays below ~4 cm)."""
     assert highest_wire_before_pressing(SeatingExpertConfig(retreat_slide=0.0), 28) > 0.03
     assert highest_wire_before_pressing(SeatingExpertConfig(), 28) < -0.01
+
+
+def pad_bottom_world(env, pad: int, tcp_world) -> np.ndarray:
+    """World centre of a pad's bottom face (its box in the model, as now turned) with the TCP
+    moved to ``tcp_world``."""
+    u = env.unwrapped
+    gid = u.model.geom(u.robot.pad_geom_names[pad]).id
+    bottom = u.data.geom_xpos[gid] - u.model.geom_size[gid][2] * np.array([0.0, 0.0, 1.0])
+    return bottom + np.asarray(tcp_world) - u.data.site_xpos[u.task.tcp_site]
+
+
+def test_laying_pads_stay_above_the_walls_they_pass_over():
+    """A lay goal that would bring a pad's bottom down onto the channel's wall (beside its
+    end, where the held plug's fingers pass) is raised until that pad clears the wall tops by
+    ``lay_wall_clearance``; a goal with both pads well clear of the channel, or with the guard
+    off, is left as it is."""
+    env, expert = curved_expert()
+    u = env.unwrapped
+    task, cfg = u.task, expert.config
+    placed = task.placed
+    channel = placed.config
+    wall_top = placed.pos[2] + channel.floor + channel.wall_height
+    origin, base = expert._base(0)
+    tcp_now = u.data.site_xpos[task.tcp_site].copy()
+    path = channel_path(task, 0.0)
+    end, before = path[-1], path[-2]
+    along = (end - before)[:2] / np.linalg.norm((end - before)[:2])
+    left = np.array([-along[1], along[0]])
+    # The pad's bottom 4 mm below the wall tops, its centre over the middle of the left wall:
+    # 1 mm before the channel's end, and with all of the face past the end, its nearest edge
+    # 1 mm past (over the wall's rounded end, which reaches wall / 2 past it).
+    pad = 0
+    gid = u.model.geom(u.robot.pad_geom_names[pad]).id
+    half = u.model.geom_size[gid][:2]
+    axes = u.data.geom_xmat[gid].reshape(3, 3)[:2, :2]
+    back = max(-(axes @ (half * [sx, sy])) @ along for sx in (-1, 1) for sy in (-1, 1))
+    for past in (-0.001, back + 0.001):
+        xy = end[:2] + past * along + (channel.inner_width / 2 + channel.wall / 2) * left
+        target = np.append(xy, wall_top - 0.004)
+        goal_world = tcp_now + target - pad_bottom_world(env, pad, tcp_now)
+        goal = (goal_world - origin) @ base
+        raised_world = origin + base @ expert._pads_above_walls(0, goal)
+        np.testing.assert_allclose(raised_world[:2], goal_world[:2], atol=1e-9)
+        bottom = pad_bottom_world(env, pad, raised_world)[2]
+        assert bottom == pytest.approx(wall_top + cfg.lay_wall_clearance, abs=1e-6)
+
+    off = SeatingExpert(env, SeatingExpertConfig(lay_wall_clearance=None))
+    off.reset()
+    np.testing.assert_allclose(off._pads_above_walls(0, goal), goal)
+
+    # Both pads 10 cm beside the channel's end (the TCP's start pose away from it too):
+    # no change.
+    far_world = goal_world + np.append(0.10 * left, 0.0)
+    for point in path:
+        for k in (0, 1):
+            assert np.linalg.norm(pad_bottom_world(env, k, far_world)[:2] - point[:2]) > 0.05
+    far = (far_world - origin) @ base
+    np.testing.assert_allclose(expert._pads_above_walls(0, far), far)

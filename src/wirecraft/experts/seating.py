@@ -133,6 +133,15 @@ class SeatingExpertConfig:
     lift_speed: float = 0.004  # m per step
     carry_speed: float = 0.006  # m per step
     lay_turn: bool = False  # turn the held plug onto the channel's last segment (carry .. place)
+    # While the pads (the lowest part of the hand) pass over the channel during the lay and
+    # the place, their bottoms stay this far above the wall tops (None: no such guard).  A pad
+    # that came down on a wall near the channel's end was pried open by the arm pushing down,
+    # and the plug dropped from 2-3 cm (its wire bowed up and later sprang it into the air).
+    lay_wall_clearance: float | None = 0.002  # m
+    # m: a pad face this close (horizontally) to the channel's walls counts as over them.  Not
+    # more: a plug held centred and lined up with the channel keeps the pads' inner faces
+    # 1.2-1.5 mm outside its outer walls (UR5), and they come down beside them.
+    lay_wall_reach: float = 0.0005
     lay_speed: float = 0.002  # m per step along the path (before the slow-down)
     lay_slowdown: tuple[float, float] = (1.0, 1.6)  # per-episode lay time factor (diversity)
     place_speed: float = 0.001  # m per step
@@ -206,6 +215,9 @@ class SeatingExpertConfig:
             "tuck_margin",
         ):
             validation.non_negative(owner, name, getattr(self, name))
+        if self.lay_wall_clearance is not None:
+            validation.non_negative(owner, "lay_wall_clearance", self.lay_wall_clearance)
+        validation.non_negative(owner, "lay_wall_reach", self.lay_wall_reach)
         validation.positive(owner, "tuck_speed", self.tuck_speed)
         for model in self.tuck_wires:
             validation.one_of(owner, "tuck_wires", model, WIRE_MODELS.names())
@@ -401,10 +413,11 @@ class SeatingExpert(ScriptedExpert):
             frac = self.lay_arc[i] / cfg.lay_from
             height = cfg.lay_height + frac * (seated - cfg.lay_height)
             point = self._path_point(i, lay_start + self.lay_arc[i], height)
-            return point + offset, rot, 2 * cfg.lay_speed, 1.0, bool(frac >= 1.0)
+            goal = self._pads_above_walls(i, point + offset)
+            return goal, rot, 2 * cfg.lay_speed, 1.0, bool(frac >= 1.0)
         if name == "place":
-            point = self._path_point(i, arc[-1], seated)
-            return point + offset, rot, cfg.place_speed, 1.0, self._stalled(i, tcp)
+            goal = self._pads_above_walls(i, self._path_point(i, arc[-1], seated) + offset)
+            return goal, rot, cfg.place_speed, 1.0, self._stalled(i, tcp)
         hold = fsm.get("hold_pos")[i]
         released = self._open_command(i, cfg.release_open)
         if name == "release":
@@ -473,6 +486,40 @@ class SeatingExpert(ScriptedExpert):
             )
         goal = hold + (cfg.retreat + cfg.final_retreat) * up
         return goal, None, cfg.descend_speed, self._open_command(i, gap), None
+
+    def _pads_above_walls(self, i, tcp_goal) -> np.ndarray:
+        """Base-frame TCP goal raised (if need be) so that each pad whose bottom face lies over
+        the channel, walls included (or within ``lay_wall_reach`` of it), at the goal or now
+        keeps that face ``lay_wall_clearance`` above the wall tops."""
+        cfg, env = self.config, self.envs[i]
+        if cfg.lay_wall_clearance is None:
+            return tcp_goal
+        origin, base = self._base(i)
+        goal_world = origin + base @ tcp_goal
+        tcp_world = env.data.site_xpos[env.task.tcp_site]
+        tcp_rot = env.data.site_xmat[env.task.tcp_site].reshape(3, 3)
+        lowest = self._wall_top(i) + cfg.lay_wall_clearance
+        lift = 0.0
+        for pad in (0, 1):
+            offset, (half_long, half_short), long = self._pad_frame(i, pad)
+            centre = tcp_rot @ offset
+            along = horizontal(tcp_rot @ long, UP)
+            across = np.cross(UP, along)
+            # A grid over the bottom face: a 3 mm wall can cross the pad between its corners.
+            face = np.array(
+                [
+                    centre[:2] + a * half_long * along[:2] + c * half_short * across[:2]
+                    for a in np.linspace(-1.0, 1.0, 6)
+                    for c in (-1.0, 0.0, 1.0)
+                ]
+            )
+            over = any(
+                self._over_channel(i, face + tcp[:2], cfg.lay_wall_reach).any()
+                for tcp in (goal_world, tcp_world)
+            )
+            if over:
+                lift = max(lift, lowest - (goal_world[2] + centre[2]))
+        return tcp_goal + lift * self._up(i)
 
     def _wire_push(self, i) -> np.ndarray:
         """Base-frame horizontal unit vector (zeros if none): the way the wire pushes the pads
@@ -668,23 +715,46 @@ class SeatingExpert(ScriptedExpert):
         self._profiles[i] = (np.where(near, high, deep), yaws)
         return self._profiles[i]
 
-    def _between_walls(self, i, xy, margin: float) -> np.ndarray:
-        """(K,) whether world xy points lie over the channel floor, ``margin`` inside the
-        walls."""
+    def _segment_coords(self, i, xy):
+        """Per channel segment: world xy points (K, 2) in its frame, (along (K,), across (K,)),
+        and the channel's config."""
         placed = self.envs[i].task.placed
         local = placed.to_local(np.column_stack([xy, np.zeros(len(xy))]))
         cfg = placed.config
-        inside = np.zeros(len(local), bool)
+        coords = []
         for start, heading in cfg.segment_frames():
             d = local[:, :2] - start
             u = d[:, 0] * math.cos(heading) + d[:, 1] * math.sin(heading)
             v = -d[:, 0] * math.sin(heading) + d[:, 1] * math.cos(heading)
+            coords.append((u, v))
+        return coords, cfg
+
+    def _between_walls(self, i, xy, margin: float) -> np.ndarray:
+        """(K,) whether world xy points lie over the channel floor, ``margin`` inside the
+        walls."""
+        coords, cfg = self._segment_coords(i, xy)
+        inside = np.zeros(len(xy), bool)
+        for u, v in coords:
             inside |= (
                 (u >= -margin)
                 & (u <= cfg.segment_length + margin)
                 & (np.abs(v) <= cfg.inner_width / 2 - margin)
             )
         return inside
+
+    def _over_channel(self, i, xy, reach: float) -> np.ndarray:
+        """(K,) whether world xy points lie over the channel, walls included (their rounded
+        ends reach ``wall / 2`` past a segment's), or within ``reach`` of it."""
+        coords, cfg = self._segment_coords(i, xy)
+        over = np.zeros(len(xy), bool)
+        ends = cfg.wall / 2 + reach
+        for u, v in coords:
+            over |= (
+                (u >= -ends)
+                & (u <= cfg.segment_length + ends)
+                & (np.abs(v) <= cfg.inner_width / 2 + cfg.wall + reach)
+            )
+        return over
 
     @staticmethod
     def _nearest_path_index(path: np.ndarray, points: np.ndarray) -> np.ndarray:
