@@ -311,6 +311,7 @@ def test_press_passes_follow_their_directions():
         ("lay_wall_clearance", -0.001),
         ("lay_wall_clearance", float("inf")),
         ("lay_wall_reach", -0.001),
+        ("lay_table_clearance", -0.001),
         ("seed", -1),  # the benchmark's --chained-expert-seed
     ],
 )

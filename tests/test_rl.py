@@ -106,6 +106,12 @@ def test_overrides_parse_to_the_field_types():
         "tuck_wires",
         ("articulated", "rod"),
     )
+    # a field that is None now reads as its declared type (``float | None``)
+    assert seating.lay_table_clearance is None
+    assert parse_override("lay_table_clearance=0.001", seating) == ("lay_table_clearance", 0.001)
+    with pytest.raises(ValueError, match="cannot read 'x' as float"):
+        parse_override("lay_table_clearance=x", seating)
+    assert parse_override("lay_wall_clearance=none", seating) == ("lay_wall_clearance", None)
 
 
 # -- the rsl-rl adapter -------------------------------------------------------------------------

@@ -109,6 +109,7 @@ from wirecraft.assets.robots.kinematics import axis_angle_to_mats
 from wirecraft.assets.wires import WIRE_MODELS
 from wirecraft.experts.base import UP, ScriptedExpert, flat, horizontal
 from wirecraft.experts.fsm import Phase
+from wirecraft.experts.insertion import TABLE_Z
 from wirecraft.sensors import contact_push
 
 
@@ -142,6 +143,9 @@ class SeatingExpertConfig:
     # more: a plug held centred and lined up with the channel keeps the pads' inner faces
     # 1.2-1.5 mm outside its outer walls (UR5), and they come down beside them.
     lay_wall_reach: float = 0.0005
+    # m: the pads' bottoms stay this far above the table during the lay and the place (None:
+    # no such floor)
+    lay_table_clearance: float | None = None
     lay_speed: float = 0.002  # m per step along the path (before the slow-down)
     lay_slowdown: tuple[float, float] = (1.0, 1.6)  # per-episode lay time factor (diversity)
     place_speed: float = 0.001  # m per step
@@ -215,8 +219,9 @@ class SeatingExpertConfig:
             "tuck_margin",
         ):
             validation.non_negative(owner, name, getattr(self, name))
-        if self.lay_wall_clearance is not None:
-            validation.non_negative(owner, "lay_wall_clearance", self.lay_wall_clearance)
+        for name in ("lay_wall_clearance", "lay_table_clearance"):
+            if getattr(self, name) is not None:
+                validation.non_negative(owner, name, getattr(self, name))
         validation.non_negative(owner, "lay_wall_reach", self.lay_wall_reach)
         validation.positive(owner, "tuck_speed", self.tuck_speed)
         for model in self.tuck_wires:
@@ -492,13 +497,13 @@ class SeatingExpert(ScriptedExpert):
         the channel, walls included (or within ``lay_wall_reach`` of it), at the goal or now
         keeps that face ``lay_wall_clearance`` above the wall tops."""
         cfg, env = self.config, self.envs[i]
-        if cfg.lay_wall_clearance is None:
+        if cfg.lay_wall_clearance is None and cfg.lay_table_clearance is None:
             return tcp_goal
         origin, base = self._base(i)
         goal_world = origin + base @ tcp_goal
         tcp_world = env.data.site_xpos[env.task.tcp_site]
         tcp_rot = env.data.site_xmat[env.task.tcp_site].reshape(3, 3)
-        lowest = self._wall_top(i) + cfg.lay_wall_clearance
+        lowest = self._wall_top(i) + (cfg.lay_wall_clearance or 0.0)
         lift = 0.0
         for pad in (0, 1):
             offset, (half_long, half_short), long = self._pad_frame(i, pad)
@@ -513,12 +518,17 @@ class SeatingExpert(ScriptedExpert):
                     for c in (-1.0, 0.0, 1.0)
                 ]
             )
+            bottom = goal_world[2] + centre[2]
+            if cfg.lay_table_clearance is not None:
+                lift = max(lift, TABLE_Z + cfg.lay_table_clearance - bottom)
+            if cfg.lay_wall_clearance is None:
+                continue
             over = any(
                 self._over_channel(i, face + tcp[:2], cfg.lay_wall_reach).any()
                 for tcp in (goal_world, tcp_world)
             )
             if over:
-                lift = max(lift, lowest - (goal_world[2] + centre[2]))
+                lift = max(lift, lowest - bottom)
         return tcp_goal + lift * self._up(i)
 
     def _wire_push(self, i) -> np.ndarray:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import typing
 from typing import Any, ClassVar
 
 # Isaac Lab's reward manager multiplies every weighted term by the control period; the
@@ -339,10 +340,18 @@ def config_from_dict(algorithm: str, values: dict[str, Any]):
     return cls(**kwargs)
 
 
+def _declared_type(cls, name: str):
+    """The one type other than None that a dataclass field is declared with (``float | None``
+    gives float), else None."""
+    hint = typing.get_type_hints(cls)[name]
+    options = [t for t in (typing.get_args(hint) or (hint,)) if t is not type(None)]
+    return options[0] if len(options) == 1 and isinstance(options[0], type) else None
+
+
 def parse_override(text: str, cfg) -> tuple[str, Any]:
     """``NAME=VALUE`` to a typed (name, value) for ``cfg``'s field ``NAME`` (any config
     dataclass; lists: comma-separated, of the current tuple's element type (str, float or
-    int); booleans: true/false; none: None)."""
+    int); booleans: true/false; none: None; a field now None reads as its declared type)."""
     if "=" not in text:
         raise ValueError(f"--set expects NAME=VALUE, got {text!r}")
     name, raw = (s.strip() for s in text.split("=", 1))
@@ -353,23 +362,24 @@ def parse_override(text: str, cfg) -> tuple[str, Any]:
             f"{', '.join(sorted(fields))}"
         )
     current = getattr(cfg, name)
+    kind = type(current) if current is not None else _declared_type(type(cfg), name)
     try:
         if raw.lower() == "none":
             return name, None
-        if isinstance(current, bool):
+        if kind is bool:
             if raw.lower() not in ("true", "false", "1", "0"):
                 raise ValueError
             return name, raw.lower() in ("true", "1")
-        if isinstance(current, tuple):
+        if kind is tuple and current is not None:
             if any(isinstance(v, str) for v in current):
                 element = str
             else:
                 element = float if any(isinstance(v, float) for v in current) else int
             return name, tuple(element(v.strip()) for v in raw.split(",") if v.strip())
-        if isinstance(current, int):
+        if kind is int:
             return name, int(float(raw)) if "e" in raw.lower() else int(raw)
-        if isinstance(current, float):
+        if kind is float:
             return name, float(raw)
     except ValueError:
-        raise ValueError(f"--set {name}: cannot read {raw!r} as {type(current).__name__}") from None
+        raise ValueError(f"--set {name}: cannot read {raw!r} as {kind.__name__}") from None
     return name, raw
