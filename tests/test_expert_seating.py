@@ -482,12 +482,17 @@ def highest_wire_before_pressing(config: SeatingExpertConfig, seed: int) -> floa
 
 @pytest.mark.slow
 def test_retreat_slides_the_pads_off_the_wire_before_rising():
-    """Curved seed 28: at the release the wire springs against a pad's end.  Rising straight
-    up, the pad lifts it by friction (to ~11 cm) and drags it along the channel; sliding
-    ``retreat_slide`` off it first, the pads travel 4 cm above the wall tops and leave the
-    wire below them (the stretch near the plug, raised by the lay, stays below ~4 cm)."""
-    assert highest_wire_before_pressing(SeatingExpertConfig(retreat_slide=0.0), 28) > 0.03
-    assert highest_wire_before_pressing(SeatingExpertConfig(), 28) < -0.01
+    """Curved seed 28, laid without the table floor (``lay_table_clearance=None``; with it,
+    this seed's wire stays 3.5 cm below the pads' travel height with or without the slide):
+    at the release the wire springs against a pad's end.  Rising straight up, the pad lifts
+    it by friction (to ~11 cm) and drags it along the channel; sliding ``retreat_slide`` off
+    it first, the pads travel 4 cm above the wall tops and leave the wire below them (the
+    stretch near the plug, raised by the lay, stays below ~4 cm)."""
+    no_floor = {"lay_table_clearance": None}
+    assert (
+        highest_wire_before_pressing(SeatingExpertConfig(retreat_slide=0.0, **no_floor), 28) > 0.03
+    )
+    assert highest_wire_before_pressing(SeatingExpertConfig(**no_floor), 28) < -0.01
 
 
 def pad_bottom_world(env, pad: int, tcp_world) -> np.ndarray:
@@ -499,7 +504,7 @@ def pad_bottom_world(env, pad: int, tcp_world) -> np.ndarray:
     return bottom + np.asarray(tcp_world) - u.data.site_xpos[u.task.tcp_site]
 
 
-def test_laying_pads_stay_above_the_walls_they_pass_over():
+def test_laying_pads_stay_above_the_walls_they_pass_over_and_the_table():
     """A lay goal that would bring a pad's bottom down onto the channel's wall (beside its
     end, where the held plug's fingers pass) is raised until that pad clears the wall tops by
     ``lay_wall_clearance``; a goal with both pads well clear of the channel, or with the guard
@@ -529,14 +534,14 @@ def test_laying_pads_stay_above_the_walls_they_pass_over():
         target = np.append(xy, wall_top - 0.004)
         goal_world = tcp_now + target - pad_bottom_world(env, pad, tcp_now)
         goal = (goal_world - origin) @ base
-        raised_world = origin + base @ expert._pads_above_walls(0, goal)
+        raised_world = origin + base @ expert._pads_clear(0, goal)
         np.testing.assert_allclose(raised_world[:2], goal_world[:2], atol=1e-9)
         bottom = pad_bottom_world(env, pad, raised_world)[2]
         assert bottom == pytest.approx(wall_top + cfg.lay_wall_clearance, abs=1e-6)
 
     off = SeatingExpert(env, SeatingExpertConfig(lay_wall_clearance=None))
     off.reset()
-    np.testing.assert_allclose(off._pads_above_walls(0, goal), goal)
+    np.testing.assert_allclose(off._pads_clear(0, goal), goal)
 
     # Both pads 10 cm beside the channel's end (the TCP's start pose away from it too):
     # no change.
@@ -545,4 +550,55 @@ def test_laying_pads_stay_above_the_walls_they_pass_over():
         for k in (0, 1):
             assert np.linalg.norm(pad_bottom_world(env, k, far_world)[:2] - point[:2]) > 0.05
     far = (far_world - origin) @ base
-    np.testing.assert_allclose(expert._pads_above_walls(0, far), far)
+    np.testing.assert_allclose(expert._pads_clear(0, far), far)
+
+    # There, 5 mm below the table top (z = 0): raised until the lower pad clears the table by
+    # lay_table_clearance, and left there with that floor off.
+    lowest = min(pad_bottom_world(env, k, far_world)[2] for k in (0, 1))
+    sunk_world = far_world - [0.0, 0.0, lowest + 0.005]
+    sunk = (sunk_world - origin) @ base
+    floored = SeatingExpert(env, SeatingExpertConfig(lay_table_clearance=0.001))
+    floored.reset()
+    raised_world = origin + base @ floored._pads_clear(0, sunk)
+    bottoms = [pad_bottom_world(env, k, raised_world)[2] for k in (0, 1)]
+    assert min(bottoms) == pytest.approx(0.001, abs=1e-6)
+    no_floor = SeatingExpert(env, SeatingExpertConfig(lay_table_clearance=None))
+    no_floor.reset()
+    np.testing.assert_allclose(no_floor._pads_clear(0, sunk), sunk)
+
+
+def widest_gap_while_laying(config: SeatingExpertConfig, seed: int) -> tuple[float, float]:
+    """Widest pad gap (m) during the lay and the place (the gripper is commanded shut), and the
+    plug origin's height above the table when the release starts."""
+    env, expert = curved_expert(config, seed)
+    u = env.unwrapped
+    widest = 0.0
+    for _ in range(EPISODE_STEPS):
+        env.step(expert.act()[0])
+        name = expert.phase_names[0]
+        if name in ("lay", "place"):
+            widest = max(widest, u.robot.gripper_opening(u.model, u.data))
+        if name == "release":
+            return widest, float(u.task.assembly.plug_pose(u.data)[0][2])
+    raise AssertionError("the release never started")
+
+
+def test_pads_kept_off_the_wall_and_the_table_are_not_pried_open():
+    """Curved seed 98 (expert seeded 98), laying the plug past the channel's end: a pad came
+    down on the wall there, and later both pads on the table, and the arm, pushing on down,
+    pried the shut gripper open (85 mm, its widest) and dropped the plug ~3 cm above the
+    board.  Each guard alone still lets it be pried open (the table, or the wall); with both
+    the gripper stays shut on the plug's ~21 mm tail and puts it down on the board (its
+    origin ~16 mm up when it lies there)."""
+    table = 0.001
+    for guards in (
+        {"lay_wall_clearance": None, "lay_table_clearance": None},
+        {"lay_wall_clearance": None, "lay_table_clearance": table},
+        {"lay_table_clearance": None},
+    ):
+        pried, _ = widest_gap_while_laying(SeatingExpertConfig(seed=98, **guards), 98)
+        assert pried > 0.04, guards
+    config = SeatingExpertConfig(seed=98, lay_table_clearance=table)
+    widest, plug_height = widest_gap_while_laying(config, 98)
+    assert widest < 0.03
+    assert plug_height < 0.02

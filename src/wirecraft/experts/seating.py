@@ -89,6 +89,15 @@ of time.  Only the wire models in ``tuck_wires`` get a tuck (by default the arti
 which it was built for; the rod did no better with it).  Measured in docs/experts.md ("The
 tuck").
 
+Pads off the walls and the table (why: the gripper's fingers close with a limited force, and
+a pad pushed down onto something pries them open).  During the lay and the place the goal is
+raised so that both pads' bottoms stay ``lay_table_clearance`` above the table and, where a
+pad passes over the channel (walls included), ``lay_wall_clearance`` above the wall tops.
+Without it, a pad came down on the wall near the channel's end and the plug dropped from 2-3
+cm, its wire bowed up and later sprang it into the air; or the pads, pushed onto the table
+with the plug already on the board, were pried open while the place ran to its timeout.
+Measured in docs/experts.md ("Pads off the walls and the table").
+
 ``lay_turn`` (off; tried) also turns the held plug onto the channel's last segment during
 carry, lay and place: worse (5 failures in the first 26 tuning seeds against 3 in 50), and the
 turns there and back cost up to ~140 steps.
@@ -144,8 +153,9 @@ class SeatingExpertConfig:
     # 1.2-1.5 mm outside its outer walls (UR5), and they come down beside them.
     lay_wall_reach: float = 0.0005
     # m: the pads' bottoms stay this far above the table during the lay and the place (None:
-    # no such floor)
-    lay_table_clearance: float | None = None
+    # no such floor).  Pushed onto the table with the plug already on the board, the pads were
+    # pried open too, and the place ran to its timeout (the TCP slid sideways as they opened).
+    lay_table_clearance: float | None = 0.001
     lay_speed: float = 0.002  # m per step along the path (before the slow-down)
     lay_slowdown: tuple[float, float] = (1.0, 1.6)  # per-episode lay time factor (diversity)
     place_speed: float = 0.001  # m per step
@@ -418,10 +428,10 @@ class SeatingExpert(ScriptedExpert):
             frac = self.lay_arc[i] / cfg.lay_from
             height = cfg.lay_height + frac * (seated - cfg.lay_height)
             point = self._path_point(i, lay_start + self.lay_arc[i], height)
-            goal = self._pads_above_walls(i, point + offset)
+            goal = self._pads_clear(i, point + offset)
             return goal, rot, 2 * cfg.lay_speed, 1.0, bool(frac >= 1.0)
         if name == "place":
-            goal = self._pads_above_walls(i, self._path_point(i, arc[-1], seated) + offset)
+            goal = self._pads_clear(i, self._path_point(i, arc[-1], seated) + offset)
             return goal, rot, cfg.place_speed, 1.0, self._stalled(i, tcp)
         hold = fsm.get("hold_pos")[i]
         released = self._open_command(i, cfg.release_open)
@@ -492,10 +502,12 @@ class SeatingExpert(ScriptedExpert):
         goal = hold + (cfg.retreat + cfg.final_retreat) * up
         return goal, None, cfg.descend_speed, self._open_command(i, gap), None
 
-    def _pads_above_walls(self, i, tcp_goal) -> np.ndarray:
-        """Base-frame TCP goal raised (if need be) so that each pad whose bottom face lies over
-        the channel, walls included (or within ``lay_wall_reach`` of it), at the goal or now
-        keeps that face ``lay_wall_clearance`` above the wall tops."""
+    def _pads_clear(self, i, tcp_goal) -> np.ndarray:
+        """Base-frame TCP goal (of the lay and the place) raised, if need be, so that both
+        pads' bottom faces stay ``lay_table_clearance`` above the table, and each pad whose
+        face lies over the channel, walls included (or within ``lay_wall_reach`` of it), at
+        the goal or now, keeps it ``lay_wall_clearance`` above the wall tops.  Why: a pad
+        pushed down onto a wall or the table pries the shut gripper open (docs/experts.md)."""
         cfg, env = self.config, self.envs[i]
         if cfg.lay_wall_clearance is None and cfg.lay_table_clearance is None:
             return tcp_goal
