@@ -340,12 +340,12 @@ def config_from_dict(algorithm: str, values: dict[str, Any]):
     return cls(**kwargs)
 
 
-def _declared_type(cls, name: str):
-    """The one type other than None that a dataclass field is declared with (``float | None``
-    gives float), else None."""
+def _declared_example(cls, name: str):
+    """A value of the one type other than None that a dataclass field is declared with
+    (``float | None`` gives 0.0), or None if that is not a plain bool, int, float or str."""
     hint = typing.get_type_hints(cls)[name]
     options = [t for t in (typing.get_args(hint) or (hint,)) if t is not type(None)]
-    return options[0] if len(options) == 1 and isinstance(options[0], type) else None
+    return options[0]() if len(options) == 1 and options[0] in (bool, int, float, str) else None
 
 
 def parse_override(text: str, cfg) -> tuple[str, Any]:
@@ -362,24 +362,25 @@ def parse_override(text: str, cfg) -> tuple[str, Any]:
             f"{', '.join(sorted(fields))}"
         )
     current = getattr(cfg, name)
-    kind = type(current) if current is not None else _declared_type(type(cfg), name)
+    if current is None:
+        current = _declared_example(type(cfg), name)
     try:
         if raw.lower() == "none":
             return name, None
-        if kind is bool:
+        if isinstance(current, bool):
             if raw.lower() not in ("true", "false", "1", "0"):
                 raise ValueError
             return name, raw.lower() in ("true", "1")
-        if kind is tuple and current is not None:
+        if isinstance(current, tuple):
             if any(isinstance(v, str) for v in current):
                 element = str
             else:
                 element = float if any(isinstance(v, float) for v in current) else int
             return name, tuple(element(v.strip()) for v in raw.split(",") if v.strip())
-        if kind is int:
+        if isinstance(current, int):
             return name, int(float(raw)) if "e" in raw.lower() else int(raw)
-        if kind is float:
+        if isinstance(current, float):
             return name, float(raw)
     except ValueError:
-        raise ValueError(f"--set {name}: cannot read {raw!r} as {kind.__name__}") from None
+        raise ValueError(f"--set {name}: cannot read {raw!r} as {type(current).__name__}") from None
     return name, raw
