@@ -33,6 +33,7 @@ from wirecraft.control import servo_action
 from wirecraft.experts.fsm import Phase, VectorFSM, step_toward, unwrap_envs
 
 UP = np.array([0.0, 0.0, 1.0])  # world
+TABLE_Z = 0.0  # m, table top (world; wirecraft.scene puts it at z = 0)
 
 
 def rotation_angle(a: np.ndarray, b: np.ndarray) -> float:

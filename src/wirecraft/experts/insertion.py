@@ -50,10 +50,14 @@ import mujoco
 import numpy as np
 
 from wirecraft.assets.robots.kinematics import axis_angle_to_mat, rotation_error
-from wirecraft.experts.base import RobotView, ScriptedExpert, robot_fields, rotation_angle
+from wirecraft.experts.base import (
+    TABLE_Z,
+    RobotView,
+    ScriptedExpert,
+    robot_fields,
+    rotation_angle,
+)
 from wirecraft.experts.fsm import Phase
-
-TABLE_Z = 0.0  # m, table top (world)
 
 
 # -- the privileged state it reads ------------------------------------------------------------

@@ -116,9 +116,8 @@ import numpy as np
 from wirecraft import validation
 from wirecraft.assets.robots.kinematics import axis_angle_to_mats
 from wirecraft.assets.wires import WIRE_MODELS
-from wirecraft.experts.base import UP, ScriptedExpert, flat, horizontal
+from wirecraft.experts.base import TABLE_Z, UP, ScriptedExpert, flat, horizontal
 from wirecraft.experts.fsm import Phase
-from wirecraft.experts.insertion import TABLE_Z
 from wirecraft.sensors import contact_push
 
 
@@ -515,7 +514,6 @@ class SeatingExpert(ScriptedExpert):
         goal_world = origin + base @ tcp_goal
         tcp_world = env.data.site_xpos[env.task.tcp_site]
         tcp_rot = env.data.site_xmat[env.task.tcp_site].reshape(3, 3)
-        lowest = self._wall_top(i) + (cfg.lay_wall_clearance or 0.0)
         lift = 0.0
         for pad in (0, 1):
             offset, (half_long, half_short), long = self._pad_frame(i, pad)
@@ -535,12 +533,9 @@ class SeatingExpert(ScriptedExpert):
                 lift = max(lift, TABLE_Z + cfg.lay_table_clearance - bottom)
             if cfg.lay_wall_clearance is None:
                 continue
-            over = any(
-                self._over_channel(i, face + tcp[:2], cfg.lay_wall_reach).any()
-                for tcp in (goal_world, tcp_world)
-            )
-            if over:
-                lift = max(lift, lowest - bottom)
+            at_goal_or_now = np.vstack([face + goal_world[:2], face + tcp_world[:2]])
+            if self._over_channel(i, at_goal_or_now, cfg.lay_wall_reach).any():
+                lift = max(lift, self._wall_top(i) + cfg.lay_wall_clearance - bottom)
         return tcp_goal + lift * self._up(i)
 
     def _wire_push(self, i) -> np.ndarray:
