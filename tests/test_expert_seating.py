@@ -602,3 +602,42 @@ def test_pads_kept_off_the_wall_and_the_table_are_not_pried_open():
     widest, plug_height = widest_gap_while_laying(config, 98)
     assert widest < 0.03
     assert plug_height < 0.02
+
+
+def deepest_wire_in_channel_while_pressing(config: SeatingExpertConfig, seed: int):
+    """Deepest penetration (m) of the wire's capsules into the channel's floor and walls while
+    the pressing pad slides along, and the episode's last ``info``."""
+    env, expert = curved_expert(config, seed)
+    u = env.unwrapped
+    model, data = u.model, u.data
+    names = [model.geom(g).name for g in range(model.ngeom)]
+    wire = {g for g, name in enumerate(names) if name.startswith("wire_cap")}
+    channel = {g for g, name in enumerate(names) if name.startswith("channel")}
+    deepest, info = 0.0, None
+    for _ in range(EPISODE_STEPS):
+        _, _, terminated, truncated, info = env.step(expert.act()[0])
+        if expert.phase_names[0] == "press":
+            for c in data.contact[: data.ncon]:
+                if {c.geom1, c.geom2} & wire and {c.geom1, c.geom2} & channel:
+                    deepest = max(deepest, -float(c.dist))
+        if terminated or truncated:
+            break
+    return deepest, info
+
+
+@pytest.mark.slow
+def test_pressing_pad_does_not_drive_the_wire_into_the_floor():
+    """Curved seed 50 (expert seeded 50): a pad that went 0.5 mm below a seated wire's top
+    (``press_squeeze``) wedged a capsule between itself and the floor (the arm's position
+    servo pushes on regardless); the capsule sank 5 mm into the channel and shot out, flinging
+    the plug 10 cm up, and the wire ended half out.  Going down to the seated wire's top only,
+    the pad seats it without burying it."""
+    sunk, info = deepest_wire_in_channel_while_pressing(
+        SeatingExpertConfig(seed=50, press_squeeze=0.0005), 50
+    )
+    assert sunk > 0.004
+    assert not info["success"]
+    sunk, info = deepest_wire_in_channel_while_pressing(SeatingExpertConfig(seed=50), 50)
+    assert sunk < 0.0025
+    assert not info["diverged"]
+    assert info["success"] and info["fraction_inside"] >= 0.8

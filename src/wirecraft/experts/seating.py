@@ -54,8 +54,9 @@ face) slides along the channel's centre line from ``press_from`` past the entry 
 ``press_yaw_slack`` (smaller bends need no turn) averaged over ``press_turn_window`` of arc
 (gradual turns through the bends), and the pad slows down where that profile turns faster than
 ``press_turn_rate`` per step.  Where the turned footprint fits between the walls it goes down
-to the top of a seated wire (``press_squeeze``) and pushes the wire onto the floor; elsewhere
-(and ``press_window`` of arc around) it passes ``press_clearance`` above the wall tops.  The
+to the top of a seated wire (``press_squeeze``; no lower: a pad below it wedged a capsule
+against the floor, and the wire shot out) and pushes the wire onto the floor; elsewhere (and
+``press_window`` of arc around) it passes ``press_clearance`` above the wall tops.  The
 profile (heights and yaws) is computed once per episode from the channel geometry and the
 pad's box in the model (``_press_profile``).  Held at the start orientation (the
 ``cartesian_fixed`` design) the pad fits only where the channel runs within ~16 deg of base x
@@ -169,7 +170,10 @@ class SeatingExpertConfig:
     retreat_slide: float = 0.015
     press_from: float = 0.03  # m of path arc (from the entry) where the pressing pass starts
     press_clearance: float = 0.0015  # m: pad bottom above the wall tops where it cannot fit
-    press_squeeze: float = 0.0005  # m: pad bottom below a seated wire's top where it fits
+    # m: pad bottom below a seated wire's top where it fits.  Not more than 0: the arm's
+    # position servo pushes on regardless, and 0.5 mm wedged a capsule between the pad and the
+    # floor; it sank 5 mm into the channel and shot out, flinging the plug (curved seed 50).
+    press_squeeze: float = 0.0
     press_margin: float = 0.0005  # m: the pad's footprint stays this far inside the walls
     press_window: float = 0.006  # m of arc: the pad rises this far before a misfit
     press_stop: float = 0.005  # m of arc before the channel's end where the pass ends
