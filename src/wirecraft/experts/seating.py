@@ -159,6 +159,11 @@ class SeatingExpertConfig:
     lay_speed: float = 0.002  # m per step along the path (before the slow-down)
     lay_slowdown: tuple[float, float] = (1.0, 1.6)  # per-episode lay time factor (diversity)
     place_speed: float = 0.001  # m per step
+    # m: the wire's end is laid this much farther past the channel's end than it ends when
+    # seated (plug_lead).  Laid at plug_lead, the wire's slack (bowed up to 2 cm between the
+    # clamp and the plug, curved seed 70) was pushed ahead of the pressing pad to the
+    # channel's end, where it bowed the last stretch up over the walls and lifted the plug.
+    place_beyond: float = 0.005
     # The place ends once the TCP has moved less than place_stall_distance for
     # place_stall_steps: a plug that rests on the board cannot go lower, and waiting out the
     # timeout cost ~45 of the 480 steps, which the pressing pass then lacked.
@@ -224,6 +229,7 @@ class SeatingExpertConfig:
             )
         owner = "SeatingExpertConfig"
         for name in (
+            "place_beyond",
             "place_stall_distance",
             "press_lead_in",
             "press_lead_out",
@@ -352,9 +358,15 @@ class SeatingExpert(ScriptedExpert):
             ]
         )
         tangent = world[-1] - world[-2]
-        world = np.vstack([world, world[-1] + task.plug_lead * tangent / np.linalg.norm(tangent)])
+        lead = task.plug_lead + self.config.place_beyond
+        world = np.vstack([world, world[-1] + lead * tangent / np.linalg.norm(tangent)])
         arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(world, axis=0), axis=1))])
         return world, arc
+
+    def _channel_end_arc(self, i) -> float:
+        """Arc of the channel's end along the path."""
+        _, arc = self._path(i)
+        return float(arc[-1] - self.envs[i].task.plug_lead - self.config.place_beyond)
 
     def _path_point(self, i, s: float, height: float) -> np.ndarray:
         """Base-frame point ``height`` above the channel floor at arc ``s`` of its path."""
@@ -565,7 +577,7 @@ class SeatingExpert(ScriptedExpert):
         cfg = self.config
         _, arc = self._path(i)
         entry_side = cfg.press_from
-        end_side = arc[-1] - self.envs[i].task.plug_lead - cfg.press_stop
+        end_side = self._channel_end_arc(i) - cfg.press_stop
         direction = cfg.press_directions[min(self.press_count[i], len(cfg.press_directions) - 1)]
         raised = self.raised_span[i]
         if self.press_count[i] and not np.isnan(raised).any():
@@ -802,7 +814,7 @@ class SeatingExpert(ScriptedExpert):
             return False
         world = env.wire_points()[1:-1]
         path, arc = self._path(i)
-        end = arc[-1] - task.plug_lead - cfg.press_stop
+        end = self._channel_end_arc(i) - cfg.press_stop
         nearest = self._nearest_path_index(path, world)
         offset = world[:, :2] - path[nearest, :2]
         distance = np.linalg.norm(offset, axis=1)
