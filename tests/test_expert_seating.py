@@ -673,14 +673,20 @@ def test_the_wire_end_is_laid_place_beyond_past_its_seated_end():
 
 @pytest.mark.slow
 def test_wire_laid_past_its_seated_end_keeps_its_plug_on_the_board():
-    """Curved tuning seed 60 (expert seeded 60): laid with its end at ``plug_lead``, the wire's
-    slack is pushed ahead of the pressing pad to the channel's end; the last stretch bows up
-    over the walls with the plug, and the episode ends under 80 % inside.  Laid 5 mm farther,
-    the pass draws the wire taut instead, and it ends seated with the plug on the board."""
-    at_lead, _, _, _, _ = run("curved", 60, SeatingExpertConfig(seed=60, place_beyond=0.0))
-    assert not at_lead["success"]
-    info, _, _, expert, _ = run("curved", 60, SeatingExpertConfig(seed=60, place_beyond=0.005))
+    """Curved validation seed 2086: laid with its end at ``plug_lead``, the pressing pass
+    leaves the last stretch bowed up over the walls, holding the plug ~23 mm up, and the
+    episode ends under 80 % inside.  Laid 5 mm farther, the episode takes another course (a
+    tuck happens; the plug still rises ~3 cm during the pass) and ends seated with the plug
+    back on the board.  One seed pins the outcome; the gain itself is measured over 100."""
+
+    def plug_height(place_beyond: float):
+        config = SeatingExpertConfig(seed=2086, place_beyond=place_beyond)
+        info, _, phases, expert, _ = run("curved", 2086, config)
+        return info, phases, expert.envs[0].task.assembly.plug_pose(expert.envs[0].data)[0][2]
+
+    at_lead, _, lifted = plug_height(0.0)
+    assert not at_lead["success"] and lifted > 0.02
+    info, phases, on_board = plug_height(0.005)
     assert not info["diverged"]
     assert info["success"] and info["fraction_inside"] >= 0.8
-    plug = expert.envs[0].task.assembly.plug_pose(expert.envs[0].data)[0]
-    assert plug[2] < 0.012
+    assert on_board < 0.012 and "tuck_push" in phases

@@ -30,12 +30,14 @@ speeds: finer than the controller's 1 cm per step).
 Phases (``PHASES``): approach (above the tail) -> descend -> settle (pads open and still for a
 randomized delay: the gentle, delayed grasp) -> close -> lift (straight up) -> carry (the plug
 to above the channel's path, ``lay_from`` metres of arc before its end) -> lay (the plug follows
-the channel's centre line to ``plug_lead`` beyond its end while coming down, slowly, so the
-wire behind it drops between the walls) -> place (the wire end down to the height of a wire
-resting on the channel floor, or until the TCP stops: the plug rests on the board) -> release
-(pads ``release_open`` apart) -> retreat (first ``retreat_slide`` sideways, the way the wire
-pushes the pads it touches, then up: a springy wire pressed against a pad rode up with it by
-friction and was dragged along the channel) -> the tuck (below), when the wire has sprung
+the channel's centre line to ``plug_lead`` + ``place_beyond`` beyond its end while coming down,
+slowly, so the wire behind it drops between the walls; laid only to ``plug_lead``, the
+pressing pass left the last stretch bowed up over the walls with the plug held up more
+often) -> place (the wire end down to the height of a wire resting on the channel floor, or
+until the TCP stops: the plug rests on the board) -> release (pads ``release_open`` apart)
+-> retreat (first ``retreat_slide`` sideways, the way the wire pushes the pads it touches,
+then up: a springy wire pressed against a pad rode up with it by friction and was dragged
+along the channel) -> the tuck (below), when the wire has sprung
 out over the walls, then the pressing pass; or, when a wire point still rides ``press_needed``
 above resting on the floor (the expert's own geometric check), the pressing pass at once:
 press_approach -> press_descend -> press -> press_retreat (straight up to the travel
@@ -160,9 +162,11 @@ class SeatingExpertConfig:
     lay_slowdown: tuple[float, float] = (1.0, 1.6)  # per-episode lay time factor (diversity)
     place_speed: float = 0.001  # m per step
     # m: the wire's end is laid this much farther past the channel's end than it ends when
-    # seated (plug_lead).  Laid at plug_lead, the wire's slack (bowed up to 2 cm between the
-    # clamp and the plug, curved seed 70) was pushed ahead of the pressing pad to the
-    # channel's end, where it bowed the last stretch up over the walls and lifted the plug.
+    # seated (plug_lead).  Laid at plug_lead, the pressing pass left the last stretch bowed up
+    # over the walls with the plug ~23 mm up in curved episodes such as validation seed 2086
+    # (0.75 inside); 5 mm farther, 6 of 9 such failures were seated, and the curved
+    # validation seeds went from 97 to 99 % (docs/experts.md).  No single mechanism: on 2086
+    # the episode takes another course (a tuck) and the plug falls back to the board.
     place_beyond: float = 0.005
     # The place ends once the TCP has moved less than place_stall_distance for
     # place_stall_steps: a plug that rests on the board cannot go lower, and waiting out the
