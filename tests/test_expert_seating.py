@@ -292,8 +292,7 @@ def test_press_passes_follow_their_directions():
     arcs; no more passes than directions."""
     env, expert = curved_expert(SeatingExpertConfig(press_directions=(1, -1)))
     _, arc = expert._path(0)
-    cfg = expert.config
-    end_side = arc[-1] - env.unwrapped.task.plug_lead - cfg.place_beyond - cfg.press_stop
+    end_side = arc[-1] - env.unwrapped.task.plug_lead - expert.config.press_stop
     assert expert._press_span(0) == pytest.approx((expert.config.press_from, end_side))
     expert.press_count[0] = 1
     assert expert._press_span(0) == pytest.approx((end_side, expert.config.press_from))
@@ -313,8 +312,6 @@ def test_press_passes_follow_their_directions():
         ("lay_wall_clearance", float("inf")),
         ("lay_wall_reach", -0.001),
         ("lay_table_clearance", -0.001),
-        ("place_beyond", -0.001),
-        ("place_beyond", float("nan")),
         ("seed", -1),  # the benchmark's --chained-expert-seed
     ],
 )
@@ -592,19 +589,16 @@ def test_pads_kept_off_the_wall_and_the_table_are_not_pried_open():
     pried the shut gripper open (85 mm, its widest) and dropped the plug ~3 cm above the
     board.  Each guard alone still lets it be pried open (the table, or the wall); with both
     the gripper stays shut on the plug's ~21 mm tail and puts it down on the board (its
-    origin ~16 mm up when it lies there).  The wire's end is laid at ``plug_lead``
-    (``place_beyond`` 0), as when this was traced: 5 mm farther, the pads happen to miss
-    the wall on this seed."""
+    origin ~16 mm up when it lies there)."""
     table = 0.001
     for guards in (
         {"lay_wall_clearance": None, "lay_table_clearance": None},
         {"lay_wall_clearance": None, "lay_table_clearance": table},
         {"lay_table_clearance": None},
     ):
-        config = SeatingExpertConfig(seed=98, place_beyond=0.0, **guards)
-        pried, _ = widest_gap_while_laying(config, 98)
+        pried, _ = widest_gap_while_laying(SeatingExpertConfig(seed=98, **guards), 98)
         assert pried > 0.04, guards
-    config = SeatingExpertConfig(seed=98, place_beyond=0.0, lay_table_clearance=table)
+    config = SeatingExpertConfig(seed=98, lay_table_clearance=table)
     widest, plug_height = widest_gap_while_laying(config, 98)
     assert widest < 0.03
     assert plug_height < 0.02
@@ -637,56 +631,13 @@ def test_pressing_pad_does_not_drive_the_wire_into_the_floor():
     (``press_squeeze``) wedged a capsule between itself and the floor (the arm's position
     servo pushes on regardless); the capsule sank 5 mm into the channel and shot out, flinging
     the plug 10 cm up, and the wire ended half out.  Going down to the seated wire's top only,
-    the pad seats it without burying it.  The wire's end is laid at ``plug_lead``
-    (``place_beyond`` 0), as when this was traced."""
+    the pad seats it without burying it."""
     sunk, info = deepest_wire_in_channel_while_pressing(
-        SeatingExpertConfig(seed=50, place_beyond=0.0, press_squeeze=0.0005), 50
+        SeatingExpertConfig(seed=50, press_squeeze=0.0005), 50
     )
     assert sunk > 0.004
     assert not info["success"]
-    config = SeatingExpertConfig(seed=50, place_beyond=0.0)
-    sunk, info = deepest_wire_in_channel_while_pressing(config, 50)
+    sunk, info = deepest_wire_in_channel_while_pressing(SeatingExpertConfig(seed=50), 50)
     assert sunk < 0.0025
     assert not info["diverged"]
     assert info["success"] and info["fraction_inside"] >= 0.8
-
-
-def test_the_wire_end_is_laid_place_beyond_past_its_seated_end():
-    """The lay and the place aim the wire's end ``plug_lead + place_beyond`` past the channel's
-    end along its last segment, while the pressing pass still stops ``press_stop`` short of
-    the channel's end itself (both measured from the channel's own centre line)."""
-    for beyond in (0.0, 0.005):
-        env, expert = curved_expert(SeatingExpertConfig(place_beyond=beyond))
-        task = env.unwrapped.task
-        line = channel_path(task, 0.0)  # world, clamp exit first, then the centre line
-        end, before = line[-1], line[-2]
-        heading = (end - before) / np.linalg.norm(end - before)
-        world, _ = expert._path(0)
-        np.testing.assert_allclose(world[-1], end + (task.plug_lead + beyond) * heading, atol=1e-9)
-        channel_length = np.linalg.norm(np.diff(line[1:], axis=0), axis=1).sum()
-        _, stop = expert._press_span(0)
-        first = expert._path(0)[0][0]  # the path starts at the channel's entry
-        np.testing.assert_allclose(first, line[1], atol=1e-9)
-        expected = channel_length - expert.config.press_stop
-        assert stop == pytest.approx(expected, abs=2e-4)
-
-
-@pytest.mark.slow
-def test_wire_laid_past_its_seated_end_keeps_its_plug_on_the_board():
-    """Curved validation seed 2086: laid with its end at ``plug_lead``, the pressing pass
-    leaves the last stretch bowed up over the walls, holding the plug ~23 mm up, and the
-    episode ends under 80 % inside.  Laid 5 mm farther, the episode takes another course (a
-    tuck happens; the plug still rises ~3 cm during the pass) and ends seated with the plug
-    back on the board.  One seed pins the outcome; the gain itself is measured over 100."""
-
-    def plug_height(place_beyond: float):
-        config = SeatingExpertConfig(seed=2086, place_beyond=place_beyond)
-        info, _, phases, expert, _ = run("curved", 2086, config)
-        return info, phases, expert.envs[0].task.assembly.plug_pose(expert.envs[0].data)[0][2]
-
-    at_lead, _, lifted = plug_height(0.0)
-    assert not at_lead["success"] and lifted > 0.02
-    info, phases, on_board = plug_height(0.005)
-    assert not info["diverged"]
-    assert info["success"] and info["fraction_inside"] >= 0.8
-    assert on_board < 0.012 and "tuck_push" in phases

@@ -30,14 +30,12 @@ speeds: finer than the controller's 1 cm per step).
 Phases (``PHASES``): approach (above the tail) -> descend -> settle (pads open and still for a
 randomized delay: the gentle, delayed grasp) -> close -> lift (straight up) -> carry (the plug
 to above the channel's path, ``lay_from`` metres of arc before its end) -> lay (the plug follows
-the channel's centre line to ``plug_lead`` + ``place_beyond`` beyond its end while coming down,
-slowly, so the wire behind it drops between the walls; laid only to ``plug_lead``, the
-pressing pass left the last stretch bowed up over the walls with the plug held up more
-often) -> place (the wire end down to the height of a wire resting on the channel floor, or
-until the TCP stops: the plug rests on the board) -> release (pads ``release_open`` apart)
--> retreat (first ``retreat_slide`` sideways, the way the wire pushes the pads it touches,
-then up: a springy wire pressed against a pad rode up with it by friction and was dragged
-along the channel) -> the tuck (below), when the wire has sprung
+the channel's centre line to ``plug_lead`` beyond its end while coming down, slowly, so the
+wire behind it drops between the walls) -> place (the wire end down to the height of a wire
+resting on the channel floor, or until the TCP stops: the plug rests on the board) -> release
+(pads ``release_open`` apart) -> retreat (first ``retreat_slide`` sideways, the way the wire
+pushes the pads it touches, then up: a springy wire pressed against a pad rode up with it by
+friction and was dragged along the channel) -> the tuck (below), when the wire has sprung
 out over the walls, then the pressing pass; or, when a wire point still rides ``press_needed``
 above resting on the floor (the expert's own geometric check), the pressing pass at once:
 press_approach -> press_descend -> press -> press_retreat (straight up to the travel
@@ -161,13 +159,6 @@ class SeatingExpertConfig:
     lay_speed: float = 0.002  # m per step along the path (before the slow-down)
     lay_slowdown: tuple[float, float] = (1.0, 1.6)  # per-episode lay time factor (diversity)
     place_speed: float = 0.001  # m per step
-    # m: the wire's end is laid this much farther past the channel's end than it ends when
-    # seated (plug_lead).  Laid at plug_lead, the pressing pass left the last stretch bowed up
-    # over the walls with the plug ~23 mm up in curved episodes such as validation seed 2086
-    # (0.75 inside); 5 mm farther, 6 of 9 such failures were seated, and the curved
-    # validation seeds went from 97 to 99 % (docs/experts.md).  No single mechanism: on 2086
-    # the episode takes another course (a tuck) and the plug falls back to the board.
-    place_beyond: float = 0.005
     # The place ends once the TCP has moved less than place_stall_distance for
     # place_stall_steps: a plug that rests on the board cannot go lower, and waiting out the
     # timeout cost ~45 of the 480 steps, which the pressing pass then lacked.
@@ -233,7 +224,6 @@ class SeatingExpertConfig:
             )
         owner = "SeatingExpertConfig"
         for name in (
-            "place_beyond",
             "place_stall_distance",
             "press_lead_in",
             "press_lead_out",
@@ -362,15 +352,9 @@ class SeatingExpert(ScriptedExpert):
             ]
         )
         tangent = world[-1] - world[-2]
-        lead = task.plug_lead + self.config.place_beyond
-        world = np.vstack([world, world[-1] + lead * tangent / np.linalg.norm(tangent)])
+        world = np.vstack([world, world[-1] + task.plug_lead * tangent / np.linalg.norm(tangent)])
         arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(world, axis=0), axis=1))])
         return world, arc
-
-    def _channel_end_arc(self, i) -> float:
-        """Arc of the channel's end along the path."""
-        _, arc = self._path(i)
-        return float(arc[-1] - self.envs[i].task.plug_lead - self.config.place_beyond)
 
     def _path_point(self, i, s: float, height: float) -> np.ndarray:
         """Base-frame point ``height`` above the channel floor at arc ``s`` of its path."""
@@ -581,7 +565,7 @@ class SeatingExpert(ScriptedExpert):
         cfg = self.config
         _, arc = self._path(i)
         entry_side = cfg.press_from
-        end_side = self._channel_end_arc(i) - cfg.press_stop
+        end_side = arc[-1] - self.envs[i].task.plug_lead - cfg.press_stop
         direction = cfg.press_directions[min(self.press_count[i], len(cfg.press_directions) - 1)]
         raised = self.raised_span[i]
         if self.press_count[i] and not np.isnan(raised).any():
@@ -818,7 +802,7 @@ class SeatingExpert(ScriptedExpert):
             return False
         world = env.wire_points()[1:-1]
         path, arc = self._path(i)
-        end = self._channel_end_arc(i) - cfg.press_stop
+        end = arc[-1] - task.plug_lead - cfg.press_stop
         nearest = self._nearest_path_index(path, world)
         offset = world[:, :2] - path[nearest, :2]
         distance = np.linalg.norm(offset, axis=1)
