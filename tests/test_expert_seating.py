@@ -235,6 +235,25 @@ def test_press_profile_keeps_the_turned_pad_between_the_walls():
             assert np.degrees(np.abs(yaws).max()) > 25.0
 
 
+@pytest.mark.parametrize("wire", ["articulated", "rod", "fem"])
+def test_pressing_pad_goes_below_a_seated_wire_top_only_for_the_soft_fem_wire(wire):
+    """Where the pad goes down, its bottom stops at a seated wire's top (two radii above the
+    floor, from the wire's own config) less the squeeze of that wire model: none for the
+    capsules of the articulated and rod wires, ``press_squeeze_fem`` for the FEM wire."""
+    env = wirecraft.make("seating", channel="straight", wire=wire, control=SeatingExpert.CONTROL)
+    config = SeatingExpertConfig(press_squeeze=0.0002, press_squeeze_fem=0.0007)
+    expert = SeatingExpert(env, config)
+    env.reset(seed=0)
+    expert.reset()
+    task = env.unwrapped.task
+    heights, _ = expert._press_profile(0)
+    deep = heights[heights < task.placed.config.wall_height]
+    assert len(deep) > 0
+    squeeze = 0.0007 if wire == "fem" else 0.0002
+    seated_top = 2 * task.assembly.wire.config.radius
+    np.testing.assert_allclose(deep, seated_top - squeeze, atol=1e-12)
+
+
 def test_press_pass_turns_no_faster_than_its_rate():
     """The pad's arc advances at most ``press_speed`` per step and its yaw changes at most
     ``press_turn_rate`` per step (the controller turns 0.01 rad per step at most), and the

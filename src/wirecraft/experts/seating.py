@@ -55,7 +55,8 @@ face) slides along the channel's centre line from ``press_from`` past the entry 
 (gradual turns through the bends), and the pad slows down where that profile turns faster than
 ``press_turn_rate`` per step.  Where the turned footprint fits between the walls it goes down
 to the top of a seated wire (``press_squeeze``; no lower: a pad below it wedged a capsule
-against the floor, and the wire shot out) and pushes the wire onto the floor; elsewhere (and
+against the floor, and the wire shot out; the soft FEM wire, which the pad squashes, is
+pushed ``press_squeeze_fem`` below it) and pushes the wire onto the floor; elsewhere (and
 ``press_window`` of arc around) it passes ``press_clearance`` above the wall tops.  The
 profile (heights and yaws) is computed once per episode from the channel geometry and the
 pad's box in the model (``_press_profile``).  Held at the start orientation (the
@@ -174,6 +175,10 @@ class SeatingExpertConfig:
     # position servo pushes on regardless, and 0.5 mm wedged a capsule between the pad and the
     # floor; it sank 5 mm into the channel and shot out, flinging the plug (curved seed 50).
     press_squeeze: float = 0.0
+    # The FEM wire, soft, is squashed by the pad rather than wedged (the wedge was traced on
+    # capsules only), so it keeps 0.5 mm: at 0 the pass left it raised on held-out straight
+    # seed 1019, and a second pass pulled it out (docs/experts.md: thin evidence).
+    press_squeeze_fem: float = 0.0005
     press_margin: float = 0.0005  # m: the pad's footprint stays this far inside the walls
     press_window: float = 0.006  # m of arc: the pad rises this far before a misfit
     press_stop: float = 0.005  # m of arc before the channel's end where the pass ends
@@ -730,8 +735,9 @@ class SeatingExpert(ScriptedExpert):
         near = np.zeros_like(blocked)
         for k in np.flatnonzero(blocked):
             near |= np.abs(arc - arc[k]) <= cfg.press_window
-        radius = task.assembly.wire.config.radius
-        deep = 2 * radius - cfg.press_squeeze
+        wire = task.assembly.wire.config
+        squeeze = cfg.press_squeeze_fem if wire.model == "fem" else cfg.press_squeeze
+        deep = 2 * wire.radius - squeeze
         high = channel.wall_height + cfg.press_clearance
         self._profiles[i] = (np.where(near, high, deep), yaws)
         return self._profiles[i]
