@@ -1,5 +1,6 @@
 """``sensors.contact_push``: the direction in which one set of collision elements is pushed by
-another, checked on boxes whose contact normals are known from the geometry."""
+another, and ``sensors.deepest_penetration``, their largest overlap, checked on boxes whose
+contact normals and overlaps are known from the geometry."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from wirecraft.sensors import contact_push, geom_ids
+from wirecraft.sensors import contact_push, deepest_penetration, geom_ids
 
 BOXES = """
 <mujoco>
@@ -55,3 +56,16 @@ def test_no_contact_no_push(resting_box):
     mujoco.mj_forward(model, data)
     box, floor = geom_ids(model, ["box"]), geom_ids(model, ["floor"])
     np.testing.assert_array_equal(contact_push(data, box, floor), np.zeros(3))
+
+
+def test_deepest_penetration_is_the_overlap_set_by_the_geometry(resting_box):
+    model, data = resting_box
+    data.qpos[2] = 0.008  # the 1 cm box's centre 8 mm up: 2 mm into the floor
+    mujoco.mj_forward(model, data)
+    box, floor, wall = (geom_ids(model, [name]) for name in ("box", "floor", "wall"))
+    assert deepest_penetration(data, box, floor) == pytest.approx(0.002, abs=1e-9)
+    assert deepest_penetration(data, wall, box) == pytest.approx(0.0005, abs=1e-9)
+    assert deepest_penetration(data, box) == pytest.approx(0.002, abs=1e-9)
+    data.qpos[2] = 0.5
+    mujoco.mj_forward(model, data)
+    assert deepest_penetration(data, box, floor) == 0.0

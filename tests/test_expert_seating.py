@@ -17,6 +17,7 @@ import pytest
 
 import wirecraft
 from wirecraft.experts.seating import SeatingExpert, SeatingExpertConfig
+from wirecraft.sensors import deepest_penetration
 
 EPISODE_STEPS = 480
 
@@ -331,6 +332,9 @@ def test_press_passes_follow_their_directions():
         ("lay_wall_clearance", float("inf")),
         ("lay_wall_reach", -0.001),
         ("lay_table_clearance", -0.001),
+        ("press_squeeze", float("nan")),
+        ("press_squeeze_fem", float("inf")),
+        ("press_squeeze_fem", "deep"),
         ("seed", -1),  # the benchmark's --chained-expert-seed
     ],
 )
@@ -627,18 +631,13 @@ def deepest_wire_in_channel_while_pressing(config: SeatingExpertConfig, seed: in
     """Deepest penetration (m) of the wire's capsules into the channel's floor and walls while
     the pressing pad slides along, and the episode's last ``info``."""
     env, expert = curved_expert(config, seed)
-    u = env.unwrapped
-    model, data = u.model, u.data
-    names = [model.geom(g).name for g in range(model.ngeom)]
-    wire = {g for g, name in enumerate(names) if name.startswith("wire_cap")}
-    channel = {g for g, name in enumerate(names) if name.startswith("channel")}
+    task, data = env.unwrapped.task, env.unwrapped.data
     deepest, info = 0.0, None
     for _ in range(EPISODE_STEPS):
         _, _, terminated, truncated, info = env.step(expert.act()[0])
         if expert.phase_names[0] == "press":
-            for c in data.contact[: data.ncon]:
-                if {c.geom1, c.geom2} & wire and {c.geom1, c.geom2} & channel:
-                    deepest = max(deepest, -float(c.dist))
+            sunk = deepest_penetration(data, task.assembly.wire_contacts, task.channel_contacts)
+            deepest = max(deepest, sunk)
         if terminated or truncated:
             break
     return deepest, info

@@ -111,6 +111,13 @@ def peak_contact_force(model, data, a: Contacts, b: Contacts | None = None) -> f
     return peak
 
 
+def deepest_penetration(data, a: Contacts, b: Contacts | None = None) -> float:
+    """Largest overlap (m, >= 0) of the contacts between set ``a`` and set ``b`` (None:
+    anything); 0 without contacts."""
+    hits = _between(data, a, b)
+    return float(max(0.0, -data.contact.dist[hits].min())) if hits.size else 0.0
+
+
 def contact_push(data, a: Contacts, b: Contacts | None) -> np.ndarray:
     """Sum (3,) of the unit normals of the contacts between set ``a`` and set ``b`` (None:
     anything), each turned to point from ``b`` into ``a``: the way ``b`` pushes ``a``."""

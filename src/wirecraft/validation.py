@@ -8,7 +8,7 @@ from collections.abc import Iterable
 import numpy as np
 
 
-def _finite(owner: str, field: str, value: float) -> float:
+def finite(owner: str, field: str, value: float) -> float:
     try:
         value = float(value)
     except (TypeError, ValueError):
@@ -19,14 +19,14 @@ def _finite(owner: str, field: str, value: float) -> float:
 
 
 def positive(owner: str, field: str, value: float) -> float:
-    value = _finite(owner, field, value)
+    value = finite(owner, field, value)
     if value <= 0:
         raise ValueError(f"{owner}.{field} must be > 0, got {value!r}")
     return value
 
 
 def non_negative(owner: str, field: str, value: float) -> float:
-    value = _finite(owner, field, value)
+    value = finite(owner, field, value)
     if value < 0:
         raise ValueError(f"{owner}.{field} must be >= 0, got {value!r}")
     return value
@@ -35,7 +35,7 @@ def non_negative(owner: str, field: str, value: float) -> float:
 def in_range(
     owner: str, field: str, value: float, low: float, high: float, *, high_open: bool = False
 ) -> float:
-    value = _finite(owner, field, value)
+    value = finite(owner, field, value)
     if value < low or value > high or (high_open and value == high):
         bracket = ")" if high_open else "]"
         raise ValueError(f"{owner}.{field} must be in [{low}, {high}{bracket}, got {value!r}")

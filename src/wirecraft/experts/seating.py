@@ -241,6 +241,9 @@ class SeatingExpertConfig:
             if getattr(self, name) is not None:
                 validation.non_negative(owner, name, getattr(self, name))
         validation.non_negative(owner, "lay_wall_reach", self.lay_wall_reach)
+        # Either sign: below (+) or above (-) a seated wire's top.
+        for name in ("press_squeeze", "press_squeeze_fem"):
+            validation.finite(owner, name, getattr(self, name))
         validation.positive(owner, "tuck_speed", self.tuck_speed)
         for model in self.tuck_wires:
             validation.one_of(owner, "tuck_wires", model, WIRE_MODELS.names())
