@@ -484,6 +484,30 @@ def test_place_ends_when_the_tcp_stops():
     assert moving == [None] * len(moving)
 
 
+def test_carry_ends_when_the_tcp_stops_short_of_its_goal(monkeypatch):
+    """A carry whose goal the arm cannot reach (here, moved 10 cm down into the table: the
+    pads come to rest on it) ends once the TCP stops, long before the phase's timeout, and
+    hands over to the lay.  An arm whose servos yield to the wire's pull (the WidowX AI) used
+    to wait out all 150 steps a few millimetres short of its goal."""
+    env, expert = curved_expert()
+    path_point = expert._path_point
+    monkeypatch.setattr(expert, "_path_point", lambda i, s, h: path_point(i, s, h - 0.1))
+    u = env.unwrapped
+    timeout = next(p.timeout for p in expert.PHASES if p.name == "carry")
+    steps, after = 0, None
+    for _ in range(EPISODE_STEPS):
+        env.step(expert.act()[0])
+        name = expert.phase_names[0]
+        if name == "carry":
+            steps += 1
+        elif steps:
+            after = name
+            break
+    assert after == "lay"
+    assert u.data.site_xpos[u.task.tcp_site][2] > 0.0  # above the table: short of the goal
+    assert steps < timeout / 2
+
+
 def highest_wire_before_pressing(config: SeatingExpertConfig, seed: int) -> float:
     """Highest inner wire point (m above the table) from the release until the first pressing
     pass starts, less the pads' travel height (``press_travel`` above the wall tops)."""

@@ -29,21 +29,21 @@ speeds: finer than the controller's 1 cm per step).
 
 Phases (``PHASES``): approach (above the tail) -> descend -> settle (pads open and still for a
 randomized delay: the gentle, delayed grasp) -> close -> lift (straight up) -> carry (the plug
-to above the channel's path, ``lay_from`` metres of arc before its end) -> lay (the plug follows
-the channel's centre line to ``plug_lead`` beyond its end while coming down, slowly, so the
-wire behind it drops between the walls) -> place (the wire end down to the height of a wire
-resting on the channel floor, or until the TCP stops: the plug rests on the board) -> release
-(pads ``release_open`` apart) -> retreat (first ``retreat_slide`` sideways, the way the wire
-pushes the pads it touches, then up: a springy wire pressed against a pad rode up with it by
-friction and was dragged along the channel) -> the tuck (below), when the wire has sprung
-out over the walls, then the pressing pass; or, when a wire point still rides ``press_needed``
-above resting on the floor (the expert's own geometric check), the pressing pass at once:
-press_approach -> press_descend -> press -> press_retreat (straight up to the travel
-height), repeated (one pass per entry of ``press_directions``) while the check still sees a
-raised wire, -> done.  The first pass covers the whole channel, a later one only the raised
-stretch (``press_lead_in`` / ``press_lead_out``): the 480-step episode rarely had room for a
-second whole pass.  A grasp that does not hold after the lift sends the
-environment back to ``approach`` (at most ``max_grasp_retries`` times).
+to above the channel's path, ``lay_from`` metres of arc before its end, or until the TCP stops)
+-> lay (the plug follows the channel's centre line to ``plug_lead`` beyond its end while coming
+down, slowly, so the wire behind it drops between the walls) -> place (the wire end down to the
+height of a wire resting on the channel floor, or until the TCP stops: the plug rests on the
+board) -> release (pads ``release_open`` apart) -> retreat (first ``retreat_slide`` sideways,
+the way the wire pushes the pads it touches, then up: a springy wire pressed against a pad rode
+up with it by friction and was dragged along the channel) -> the tuck (below), when the wire
+has sprung out over the walls, then the pressing pass; or, when a wire point still rides
+``press_needed`` above resting on the floor (the expert's own geometric check), the pressing
+pass at once: press_approach -> press_descend -> press -> press_retreat (straight up to the
+travel height), repeated (one pass per entry of ``press_directions``) while the check still
+sees a raised wire, -> done. The first pass covers the whole channel, a later one only the
+raised stretch (``press_lead_in`` / ``press_lead_out``): the 480-step episode rarely had room
+for a second whole pass. A grasp that does not hold after the lift sends the environment back
+to ``approach`` (at most ``max_grasp_retries`` times).
 
 Pressing pass (why: held only at the bolted clamp and the plug, the stiff wire keeps one smooth
 shape that bridges the curved channel's bends on the wall tops; pressed onto the floor, a
@@ -432,7 +432,7 @@ class SeatingExpert(ScriptedExpert):
         lay_start = arc[-1] - cfg.lay_from
         if name == "carry":
             point = self._path_point(i, lay_start, cfg.lay_height)
-            return point + offset, rot, cfg.carry_speed, 1.0, None
+            return point + offset, rot, cfg.carry_speed, 1.0, self._stalled(i, tcp)
         seated = self._seated_height(i)
         if name == "lay":
             self.lay_arc[i] = min(self.lay_arc[i] + self.lay_speed[i], cfg.lay_from)
@@ -561,8 +561,9 @@ class SeatingExpert(ScriptedExpert):
     def _stalled(self, i, tcp) -> bool | None:
         """True once the TCP has stayed within ``place_stall_distance`` for
         ``place_stall_steps`` steps of the current phase (the place: the plug rests on the
-        board; the tuck's push: the wire will go no farther); None otherwise (the pose and
-        dwell decide)."""
+        board; the tuck's push: the wire will go no farther; the carry: the arm's servos yield
+        to the wire's pull a few millimetres short of the goal, as the WidowX AI's did, which
+        then waited out the 150-step timeout); None otherwise (the pose and dwell decide)."""
         cfg = self.config
         still = self._steps_still(i, tcp, cfg.place_stall_distance)
         return True if still >= cfg.place_stall_steps else None
