@@ -5,6 +5,12 @@ shoulder-to-elbow offset and link masses from Trossen's public description
 (trossen_arm_description); torques 27 N m (j0-2) and 7 N m (j3-5) from Trossen's
 specification page.  The last link's 0.555 kg is split: 0.455 kg wrist + 0.1 kg gripper palm.
 The tool axis is the last link's +x: the flange turns z onto it (pitch +90 deg).
+
+Servo gains are our choice, set as stiff relative to each joint's torque as the UR5's and the
+Panda's: a joint reaches its torque limit ~0.03 rad from its target (UR5 0.05, Panda 0.02-0.04
+rad).  The first gains (300 and 60 N m / rad, 0.09-0.12 rad) let the arm yield: pressing the
+wire into the seating channel, the pad rode up to the wall tops, and carrying the plug, the TCP
+stopped ~5 mm short against the wire's pull (docs/experts.md, "The WidowX AI's servos").
 """
 
 from __future__ import annotations
@@ -29,12 +35,12 @@ WXAI_OFFSETS = (
 WXAI_JOINTS = tuple(
     ArmJoint(*row)
     for row in (
-        (-3.054, 3.054, 3.375, 27.0, 0.153, 300.0, 0.05, 0.3, 0.040),
-        (0.0, 3.14, 3.375, 27.0, 1.153, 300.0, 0.05, 0.3, 0.035),
-        (0.0, 2.356, 3.375, 27.0, 0.687, 300.0, 0.05, 0.3, 0.030),
-        (-1.57, 1.57, 7.0, 7.0, 0.458, 60.0, 0.01, 0.1, 0.028),
-        (-1.57, 1.57, 7.0, 7.0, 0.367, 60.0, 0.01, 0.1, 0.025),
-        (-3.14, 3.14, 7.0, 7.0, 0.455, 60.0, 0.01, 0.1, 0.025),
+        (-3.054, 3.054, 3.375, 27.0, 0.153, 1000.0, 0.05, 0.3, 0.040),
+        (0.0, 3.14, 3.375, 27.0, 1.153, 1000.0, 0.05, 0.3, 0.035),
+        (0.0, 2.356, 3.375, 27.0, 0.687, 1000.0, 0.05, 0.3, 0.030),
+        (-1.57, 1.57, 7.0, 7.0, 0.458, 200.0, 0.01, 0.1, 0.028),
+        (-1.57, 1.57, 7.0, 7.0, 0.367, 200.0, 0.01, 0.1, 0.025),
+        (-3.14, 3.14, 7.0, 7.0, 0.455, 200.0, 0.01, 0.1, 0.025),
     )
 )
 
