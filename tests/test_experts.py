@@ -229,10 +229,21 @@ def _pre_insert_outcome(env, config, seed: int):
     raise AssertionError(f"pre_insert never ended (phase {expert.phase_names[0]})")
 
 
-def test_integral_action_brings_a_sagging_arm_within_the_pre_insert_tolerance():
-    """On seed 5 the WidowX AI's servos sag ~2 mm under the held plug, beyond the 1.5 mm
-    tolerance of pre_insert: without the integral offset the phase runs into its timeout;
-    with it, the tolerance is met well before."""
+def test_integral_action_brings_a_sagging_arm_within_the_pre_insert_tolerance(monkeypatch):
+    """A WidowX AI with softer servos (kp 300 / 60 N m/rad, its gains before it was stiffened)
+    sags ~2 mm under the held plug on seed 5, beyond the 1.5 mm tolerance of pre_insert: without
+    the integral offset the phase runs into its timeout; with it, the tolerance is met well
+    before."""
+    import dataclasses
+
+    from wirecraft.assets.robots.base import ROBOTS
+
+    stiff = ROBOTS.get("wxai")
+    soft = tuple(
+        dataclasses.replace(joint, kp=300.0 if k < 3 else 60.0)
+        for k, joint in enumerate(stiff.joints)
+    )
+    monkeypatch.setitem(ROBOTS._items, "wxai", dataclasses.replace(stiff, joints=soft))
     env = wirecraft.make("insertion", robot="wxai", connector="ethernet")
     plain = InsertionExpertConfig(release=False, diversity=False, sag_gain=0.0)
     steps, timed_out = _pre_insert_outcome(env, plain, seed=5)
