@@ -336,9 +336,22 @@ def test_press_passes_follow_their_directions():
         ("press_squeeze_fem", float("inf")),
         ("press_squeeze_fem", "deep"),
         ("seed", -1),  # the benchmark's --chained-expert-seed
+        ("lay_height", -0.01),
+        ("press_from", float("nan")),
+        ("final_retreat", -0.05),
+        ("carry_speed", 0.0),
+        ("press_speed", -0.005),
+        ("release_open", 0.0),
+        ("press_lag_slowdown", 0.0),
+        ("press_lag_slowdown", 1.5),
+        ("lay_slowdown", (1.6, 1.0)),
+        ("lay_slowdown", (0.0, 1.0)),
+        ("lay_slowdown", (1.0,)),
+        ("settle_jitter", -1),
+        ("max_grasp_retries", 1.5),
     ],
 )
-def test_bad_stall_and_lead_settings_are_refused(field, value):
+def test_bad_distances_speeds_and_counts_are_refused(field, value):
     with pytest.raises(ValueError, match=field):
         SeatingExpertConfig(**{field: value})
 

@@ -229,6 +229,51 @@ class SeatingExpertConfig:
             )
         owner = "SeatingExpertConfig"
         for name in (
+            "approach_speed",
+            "descend_speed",
+            "lift_speed",
+            "carry_speed",
+            "lay_speed",
+            "place_speed",
+            "press_speed",
+            "press_turn_rate",
+            "pre_open",
+            "release_open",
+            "press_open",
+        ):
+            validation.positive(owner, name, getattr(self, name))
+        validation.positive(owner, "press_lag_slowdown", self.press_lag_slowdown)
+        validation.in_range(owner, "press_lag_slowdown", self.press_lag_slowdown, 0.0, 1.0)
+        slowdown = tuple(self.lay_slowdown)
+        if len(slowdown) != 2 or not (
+            0
+            < validation.finite(owner, "lay_slowdown", slowdown[0])
+            <= validation.finite(owner, "lay_slowdown", slowdown[1])
+        ):
+            raise ValueError(
+                f"{owner}.lay_slowdown must be (low, high) with 0 < low <= high, got {slowdown!r}"
+            )
+        for name in (
+            "hover",
+            "grasp_height",
+            "lift",
+            "lay_from",
+            "lay_height",
+            "place_above",
+            "retreat",
+            "press_from",
+            "press_clearance",
+            "press_margin",
+            "press_window",
+            "press_stop",
+            "press_needed",
+            "press_hover",
+            "press_travel_reach",
+            "press_travel",
+            "press_lag",
+            "press_turn_window",
+            "press_yaw_slack",
+            "final_retreat",
             "place_stall_distance",
             "press_lead_in",
             "press_lead_out",
@@ -248,6 +293,8 @@ class SeatingExpertConfig:
         for model in self.tuck_wires:
             validation.one_of(owner, "tuck_wires", model, WIRE_MODELS.names())
         validation.at_least_int(owner, "place_stall_steps", self.place_stall_steps, 1)
+        for name in ("settle_steps", "settle_jitter", "max_grasp_retries"):
+            validation.at_least_int(owner, name, getattr(self, name), 0)
         validation.at_least_int(owner, "seed", self.seed, 0)
 
 
