@@ -686,13 +686,16 @@ def test_pressing_pad_does_not_drive_the_wire_into_the_floor():
     (``press_squeeze``) wedged a capsule between itself and the floor (the arm's position
     servo pushes on regardless); the capsule sank 5 mm into the channel and shot out, flinging
     the plug 10 cm up, and the wire ended half out.  Going down to the seated wire's top only,
-    the pad seats it without burying it."""
+    the pad seats it without burying it.  The pass starts 3 cm from the entry, as it did then:
+    from 8 cm (the default now) the same squeeze sank no capsule deeper than 1.3 mm here."""
     sunk, info = deepest_wire_in_channel_while_pressing(
-        SeatingExpertConfig(seed=50, press_squeeze=0.0005), 50
+        SeatingExpertConfig(seed=50, press_from=0.03, press_squeeze=0.0005), 50
     )
     assert sunk > 0.004
     assert not info["success"]
-    sunk, info = deepest_wire_in_channel_while_pressing(SeatingExpertConfig(seed=50), 50)
+    sunk, info = deepest_wire_in_channel_while_pressing(
+        SeatingExpertConfig(seed=50, press_from=0.03), 50
+    )
     assert sunk < 0.0025
     assert not info["diverged"]
     assert info["success"] and info["fraction_inside"] >= 0.8
