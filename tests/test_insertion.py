@@ -186,6 +186,29 @@ def test_widowx_ports_stay_within_its_reach_with_the_same_draws():
     np.testing.assert_allclose(ports["wxai"], ports["ur5"], atol=1e-12)
 
 
+def test_widowx_plugs_spawn_within_its_reach_with_the_same_draws():
+    # WidowX AI: the plug at most 0.40 m in front of its base (beyond, the arm cannot hold the
+    # pose above it from which it grasps); UR5 and Panda keep the SPEC's +/-0.15 m.
+    plugs = {}
+    for robot in ("ur5", "wxai"):
+        unwrapped = make(robot=robot).unwrapped
+        task, model, data = unwrapped.task, unwrapped.model, unwrapped.data
+        x_lo, x_hi = task.plug_x_range()
+        spec = (-SPEC_OFFSET_ACROSS + ins.PLUG_CENTRE[0], SPEC_OFFSET_ACROSS + ins.PLUG_CENTRE[0])
+        assert (x_lo, x_hi) == pytest.approx(spec if robot == "ur5" else (-0.15, 0.10))
+        base = data.site_xpos[task.base_site].copy()
+        fractions = []
+        for seed in range(40):
+            task.initialize_episode(model, data, np.random.default_rng(seed))
+            plug = task.sampled["plug"]
+            assert x_lo <= plug[0] <= x_hi
+            if robot == "wxai":
+                assert plug[0] - base[0] <= 0.40 + 1e-9
+            fractions.append((plug[0] - x_lo) / (x_hi - x_lo))
+        plugs[robot] = np.array(fractions)
+    np.testing.assert_allclose(plugs["wxai"], plugs["ur5"], atol=1e-12)
+
+
 def expected_plug_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """Plug x along the insertion direction (yawed about +z from +y, pitched up), its y
     horizontal, then rolled about x: written out independently of the package."""

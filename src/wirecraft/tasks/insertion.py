@@ -13,7 +13,9 @@ Randomizations (each reset, from the reset seed)
     Port: fixed along the insertion axis (mouth at y = 0.22 m); across it (x) within 28 cm,
     height within 15 cm (UR5, Panda: the SPEC's ranges).  The smaller WidowX AI, gripper
     pointing down, cannot hold a horizontal plug at a mouth higher than ~0.13 m nor 0.48 m away
-    from its base: its ports stay within ``PORT_RANGES["wxai"]`` (``port_ranges``).
+    from its base: its ports stay within ``PORT_RANGES["wxai"]`` (``port_ranges``), and its
+    plugs within ``PLUG_X_RANGES["wxai"]`` (``plug_x_range``): beyond x = 0.10 m it cannot
+    hold the pose above the plug from which it grasps.
 
 Retention (beyond the reference)
     A connector that retains (ethernet and displayport: latch; usb_a: friction; see
@@ -69,6 +71,11 @@ PORT_Z_RANGE = (0.04, 0.19)  # m mouth centre height: 15 cm
 PORT_RANGES = {"wxai": ((-0.14, 0.10), (0.04, 0.13))}
 PLUG_CENTRE = np.array([0.0, -0.02])  # m (x, y) of the plug spawn region
 PLUG_OFFSET = (0.15, 0.05)  # m, +/- across (x) and along (y) the insertion axis
+# Per-robot x ranges of the plug spawn (m, world), mapped from the same draws as PORT_RANGES.
+# The WidowX AI, reaching for a plug beyond x = 0.10 m (0.40 m from its base) with the tool
+# pointing down, cannot hold its approach pose 5 cm above it: the TCP sinks and its pad knocks
+# the plug aside (docs/experts.md, "The WidowX AI's servos").
+PLUG_X_RANGES = {"wxai": (-0.15, 0.10)}
 PLUG_HEIGHT = (0.06, 0.11)  # m
 PLUG_ROLL_PITCH = math.radians(18.0)
 PLUG_YAW = math.radians(36.0)
@@ -203,6 +210,12 @@ class InsertionTask(BatchedTask):
         robot = self.robot.name if self.robot is not None else None
         return PORT_RANGES.get(robot, (PORT_X_RANGE, PORT_Z_RANGE))
 
+    def plug_x_range(self) -> tuple[float, float]:
+        """x range of the plug spawn for this task's robot (m, world)."""
+        robot = self.robot.name if self.robot is not None else None
+        spec = (PLUG_CENTRE[0] - PLUG_OFFSET[0], PLUG_CENTRE[0] + PLUG_OFFSET[0])
+        return PLUG_X_RANGES.get(robot, spec)
+
     def initialize_episode(self, model, data, rng) -> None:
         x_range, z_range = self.port_ranges()
         port = np.array([rng.uniform(*x_range), PORT_Y, rng.uniform(*z_range)])
@@ -215,7 +228,7 @@ class InsertionTask(BatchedTask):
         )
         plug = np.array(
             [
-                PLUG_CENTRE[0] + rng.uniform(-PLUG_OFFSET[0], PLUG_OFFSET[0]),
+                rng.uniform(*self.plug_x_range()),
                 PLUG_CENTRE[1] + rng.uniform(-PLUG_OFFSET[1], PLUG_OFFSET[1]),
                 rng.uniform(*PLUG_HEIGHT),
             ]
