@@ -347,6 +347,8 @@ def test_press_passes_follow_their_directions():
         ("lay_slowdown", (1.6, 1.0)),
         ("lay_slowdown", (0.0, 1.0)),
         ("lay_slowdown", (1.0,)),
+        ("lay_slowdown", 1.0),
+        ("lay_slowdown", None),
         ("settle_jitter", -1),
         ("max_grasp_retries", 1.5),
     ],

@@ -249,8 +249,9 @@ class SeatingExpertConfig:
             validation.positive(owner, name, getattr(self, name))
         validation.positive(owner, "press_lag_slowdown", self.press_lag_slowdown)
         validation.in_range(owner, "press_lag_slowdown", self.press_lag_slowdown, 0.0, 1.0)
-        slowdown = tuple(self.lay_slowdown)
-        if len(slowdown) != 2 or not (
+        slowdown = self.lay_slowdown
+        pair = isinstance(slowdown, (tuple, list)) and len(slowdown) == 2
+        if not pair or not (
             0
             < validation.finite(owner, "lay_slowdown", slowdown[0])
             <= validation.finite(owner, "lay_slowdown", slowdown[1])
