@@ -14,7 +14,14 @@ from wirecraft import physics
 from wirecraft.assets.fixtures import ClipConfig, add_clip
 from wirecraft.scene import compile_spec, new_spec
 from wirecraft.tasks.assembly import resample
-from wirecraft.tasks.routing import LANE_JITTER, LANE_X, LAYOUTS, LIP_INTERFERENCE, MAX_ROUTE
+from wirecraft.tasks.routing import (
+    LANE_JITTER,
+    LANE_X,
+    LANE_X_BY_ROBOT,
+    LAYOUTS,
+    LIP_INTERFERENCE,
+    MAX_ROUTE,
+)
 
 WIRE_RADIUS = 0.004  # m, the articulated wire's
 # Upward pull a seated wire must survive: twice the weight of the whole cable (0.4 m of 8 mm
@@ -58,6 +65,43 @@ def test_sampled_clips_respect_the_ranges_and_the_fallen_cable_clears_them(num_c
             )
             assert outside.min() > WIRE_RADIUS + 0.005, (seed, outside.min())
     env.close()
+
+
+@pytest.mark.parametrize("num_clips", [1, 2, 3])
+def test_widowx_clips_lie_within_its_reach_with_the_same_draws(num_clips):
+    """The WidowX AI's lane is moved towards its base; the rest of the layout is the UR5's,
+    draw for draw, and its fallen cable touches no part of the arm."""
+    sampled = {}
+    for robot in ("ur5", "wxai"):
+        env = wirecraft.make("routing", num_clips=num_clips, robot=robot)
+        task, model, data = env.unwrapped.task, env.unwrapped.model, env.unwrapped.data
+        base = model.body(env.unwrapped.robot.base_site).id
+        sampled[robot] = []
+        for seed in range(4):
+            env.reset(seed=seed)
+            clips = np.array(task.sampled["clips"])
+            sampled[robot].append((clips, task.sampled["angle"], task.sampled["pitch"]))
+            base_x = data.xpos[base][0]
+            reach = clips[:, 0] - base_x
+            if robot == "wxai":
+                assert reach.max() <= 0.40 + 1e-9, (seed, reach)
+            arm = {g for g in range(model.ngeom) if model.body_rootid[model.geom_bodyid[g]] == base}
+            touching = [
+                (model.geom(c.geom1).name, model.geom(c.geom2).name)
+                for c in data.contact[: data.ncon]
+                if (c.geom1 in arm) != (c.geom2 in arm)
+                and "table" not in (model.geom(c.geom1).name, model.geom(c.geom2).name)
+            ]
+            assert not touching, (robot, seed, touching)
+        env.close()
+    shift = LANE_X_BY_ROBOT["wxai"] - LANE_X
+    assert shift < 0
+    for (ur5_clips, *ur5_rest), (wx_clips, *wx_rest) in zip(
+        sampled["ur5"], sampled["wxai"], strict=True
+    ):
+        np.testing.assert_allclose(wx_clips[:, 0], ur5_clips[:, 0] + shift, atol=1e-12)
+        np.testing.assert_allclose(wx_clips[:, 1:], ur5_clips[:, 1:], atol=1e-12)
+        np.testing.assert_allclose(wx_rest, ur5_rest, atol=1e-12)
 
 
 def seated_wire_after_pull(opening: float, pull: float) -> bool:

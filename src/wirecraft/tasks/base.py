@@ -119,6 +119,11 @@ class Task(ABC):
         self.robot: RobotHandle | None = None
 
     @property
+    def robot_name(self) -> str | None:
+        """The bound robot's name (None before ``bind``): per-robot layouts key on it."""
+        return self.robot.name if self.robot is not None else None
+
+    @property
     def episode_seconds(self) -> float:
         """The default episode length of this task variant (``WireCraftEnv(episode_seconds=
         None)`` and the evaluation protocol use it)."""

@@ -207,14 +207,12 @@ class InsertionTask(BatchedTask):
     # -- episode ----------------------------------------------------------------------------
     def port_ranges(self) -> tuple[tuple[float, float], tuple[float, float]]:
         """(x range, z range) of the port's mouth for this task's robot (m, world)."""
-        robot = self.robot.name if self.robot is not None else None
-        return PORT_RANGES.get(robot, (PORT_X_RANGE, PORT_Z_RANGE))
+        return PORT_RANGES.get(self.robot_name, (PORT_X_RANGE, PORT_Z_RANGE))
 
     def plug_x_range(self) -> tuple[float, float]:
         """x range of the plug spawn for this task's robot (m, world)."""
-        robot = self.robot.name if self.robot is not None else None
         spec = (PLUG_CENTRE[0] - PLUG_OFFSET[0], PLUG_CENTRE[0] + PLUG_OFFSET[0])
-        return PLUG_X_RANGES.get(robot, spec)
+        return PLUG_X_RANGES.get(self.robot_name, spec)
 
     def initialize_episode(self, model, data, rng) -> None:
         x_range, z_range = self.port_ranges()

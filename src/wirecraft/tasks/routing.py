@@ -11,7 +11,9 @@ Randomizations (each reset, from the reset seed)
     neighbouring clips are at most
     ``max_across`` apart across the lane (rejection sampling): a 0.4 m cable cannot follow a
     zigzag of 12 cm steps through three clips 8.5 cm apart, and its 33 mm segments cannot bend
-    sharply enough between slots.  Every clip still lies within +/-6 cm of the lane.
+    sharply enough between slots.  Every clip still lies within +/-6 cm of the lane.  The
+    lane is the line x = 0.10 m, except for the WidowX AI (x = 0.04 m, ``LANE_X_BY_ROBOT``:
+    within its reach); the clamp and cable move with it.
     Cable: clamp block on the table at the lane's start; the wire leaves it at
     ``wire_angle`` off the lane towards the robot (steep enough that the fallen cable clears
     the first clip), its plug end at 6-11 cm height, rolled +/-18 deg; the assembly then falls
@@ -44,7 +46,15 @@ from wirecraft.sensors import body_geom_ids
 from wirecraft.tasks.assembly import WireAssembly, resample
 from wirecraft.tasks.base import EPISODE_SECONDS, TASKS, Task, shaped
 
-LANE_X = 0.10  # m
+LANE_X = 0.10  # m (world): the lane's line, 0.40 m in front of the WidowX AI's base
+# Per-robot lane lines (m, world); the clips, clamp and cable move with it, from the same draws.
+# The WidowX AI's lane is 6 cm nearer its base, so that no clip (lane +/- LANE_JITTER) lies
+# farther than 0.40 m in front of it: beyond ~0.46 m the arm cannot point the tool down at all
+# (its elbow at its limit), and from 0.40 m on it cannot hold the pose above a plug either
+# (PLUG_X_RANGES, tasks/insertion.py).  With the shared lane its approach stalled short of
+# grasp points past the far clips until the phase timed out, three times in a row
+# (docs/experts.md, "The WidowX AI's reach").
+LANE_X_BY_ROBOT = {"wxai": 0.04}
 LANE_JITTER = 0.06  # m across the lane
 CLIP_YAW_JITTER = math.radians(15.0)
 PLUG_HEIGHT = (0.06, 0.11)
@@ -60,9 +70,10 @@ class RouteLayout:
     wire_angle: tuple[float, float]  # rad off the lane, towards the robot
     max_across: float  # m: largest offset across the lane between neighbouring clips
 
-    def route_length(self, clip_x) -> float:
-        """m of centre line from the clamp through every slot centre (straight hops)."""
-        xs = np.concatenate([[LANE_X], np.asarray(clip_x, float)])
+    def route_length(self, clip_x, lane_x: float = LANE_X) -> float:
+        """m of centre line from the clamp (on the lane at ``lane_x``) through every slot
+        centre (straight hops)."""
+        xs = np.concatenate([[lane_x], np.asarray(clip_x, float)])
         ys = np.concatenate([[self.clamp_y], self.clip_y])
         return float(np.hypot(np.diff(xs), np.diff(ys)).sum())
 
@@ -153,6 +164,10 @@ class RoutingTask(Task):
         self.held_contacts = self.assembly.wire_contacts
 
     # -- episode ----------------------------------------------------------------------------
+    def lane_x(self) -> float:
+        """x of the lane's line for this task's robot (m, world)."""
+        return LANE_X_BY_ROBOT.get(self.robot_name, LANE_X)
+
     def initialize_episode(self, model, data, rng) -> None:
         layout = self.layout
         self.sampled = {"clips": []}
@@ -165,7 +180,7 @@ class RoutingTask(Task):
         angle = rng.uniform(*layout.wire_angle)
         roll = rng.uniform(-PLUG_ROLL, PLUG_ROLL)
         length = self.assembly.wire.config.length
-        start = np.array([LANE_X, layout.clamp_y, 0.02])
+        start = np.array([self.lane_x(), layout.clamp_y, 0.02])
         rise = rng.uniform(*PLUG_HEIGHT) - start[2]
         pitch = math.asin(rise / length)
         direction = np.array(
@@ -178,7 +193,7 @@ class RoutingTask(Task):
         """Clip offsets across the lane: uniform +/-``LANE_JITTER`` each, resampled until
         neighbours are at most ``max_across`` apart (the first clip is free)."""
         while True:
-            xs = LANE_X + rng.uniform(-LANE_JITTER, LANE_JITTER, self.num_clips)
+            xs = self.lane_x() + rng.uniform(-LANE_JITTER, LANE_JITTER, self.num_clips)
             if np.all(np.abs(np.diff(xs)) <= self.layout.max_across):
                 return xs
 
