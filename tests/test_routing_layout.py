@@ -76,6 +76,7 @@ def test_widowx_clips_lie_within_its_reach_with_the_same_draws(num_clips):
         env = wirecraft.make("routing", num_clips=num_clips, robot=robot)
         task, model, data = env.unwrapped.task, env.unwrapped.model, env.unwrapped.data
         base = model.body(env.unwrapped.robot.base_site).id
+        arm = {g for g in range(model.ngeom) if model.body_rootid[model.geom_bodyid[g]] == base}
         sampled[robot] = []
         for seed in range(4):
             env.reset(seed=seed)
@@ -85,7 +86,6 @@ def test_widowx_clips_lie_within_its_reach_with_the_same_draws(num_clips):
             reach = clips[:, 0] - base_x
             if robot == "wxai":
                 assert reach.max() <= 0.40 + 1e-9, (seed, reach)
-            arm = {g for g in range(model.ngeom) if model.body_rootid[model.geom_bodyid[g]] == base}
             touching = [
                 (model.geom(c.geom1).name, model.geom(c.geom2).name)
                 for c in data.contact[: data.ncon]

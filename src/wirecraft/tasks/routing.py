@@ -70,10 +70,9 @@ class RouteLayout:
     wire_angle: tuple[float, float]  # rad off the lane, towards the robot
     max_across: float  # m: largest offset across the lane between neighbouring clips
 
-    def route_length(self, clip_x, lane_x: float = LANE_X) -> float:
-        """m of centre line from the clamp (on the lane at ``lane_x``) through every slot
-        centre (straight hops)."""
-        xs = np.concatenate([[lane_x], np.asarray(clip_x, float)])
+    def route_length(self, clip_x) -> float:
+        """m of centre line from the clamp through every slot centre (straight hops)."""
+        xs = np.concatenate([[LANE_X], np.asarray(clip_x, float)])
         ys = np.concatenate([[self.clamp_y], self.clip_y])
         return float(np.hypot(np.diff(xs), np.diff(ys)).sum())
 
