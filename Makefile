@@ -23,7 +23,12 @@ $(PY):
 
 venv: $(PY)
 
+# PyPI's PyTorch for Linux brings its CUDA libraries: the environment takes ~6.5 GB. Short of
+# that, pip fails late with 'No space left on device'; say so up front.
 $(STAMP): pyproject.toml | $(PY)
+	@free_kb=$$(df -Pk "$(VENV)" | awk 'NR==2 {print $$4}'); \
+	if [ "$${free_kb:-0}" -lt 8000000 ]; then \
+	  echo "warning: installing needs about 8 GB of free disk; $$((free_kb / 1024)) MB free where $(VENV) lives" >&2; fi
 	$(PY) -m pip install -q -e '.[dev,all]'
 	@touch $@
 
