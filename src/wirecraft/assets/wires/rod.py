@@ -2,10 +2,13 @@
 
 The flex lives at world level (no pins): each vertex is a point mass with three slide joints,
 each edge a capsule of the wire's radius, edge lengths are held by a flex equality, and the
-``elasticity`` element gives bending (from E I) and twist (from G J).  Ends are attached with two
-``connect`` equalities (the end vertex and its neighbour), which clamps position and tangent;
-the wire's roll about its own axis at an attached end stays free.  This is ~5x faster than
-pinning the rod inside a jointed body (docs/physics.md).
+``elasticity`` element gives bending (from E I) and twist (from G J).  An attached end is
+clamped: its two vertices become points of the attached body, which MuJoCo then treats like a
+``<pin>`` of that edge (XMLreference, flex elasticity): the body fixes the end's position,
+tangent and material frame, so the rod's twist reaches it, and the edge's own twist joint goes.
+(Two ``connect`` equalities, used before, clamped position and tangent but left the roll about
+the wire's axis free: a plug turned against no torsional stiffness at all, docs/physics.md.)
+The flex stays at world level rather than inside a jointed body, which is ~5x faster.
 """
 
 from __future__ import annotations
@@ -87,12 +90,49 @@ class RodWire(WireHandle):
         last = self.config.segments
         return [0, 1] if end == "start" else [last, last - 1]
 
+    def _end_twist(self, end: str) -> str:
+        """The twist joint (and body) of the end edge, which clamping removes."""
+        return f"{self.flex_name}_twist_0" if end == "start" else f"{self.flex_name}_twist"
+
     def _attach(self, spec: mujoco.MjSpec, end: str, body_name: str) -> None:
+        # MuJoCo clamps the last edge only on a rod of >= 3 edges (XMLreference)
+        if self.config.segments < 3:
+            raise ValueError(f"wire {self.name!r}: attaching a rod end needs >= 3 segments")
         seg = self.config.segment_length
-        anchors = [
-            (self.body_name(v), np.array([v * seg, 0.0, 0.0])) for v in self._end_vertices(end)
-        ]
-        self._connect_sites(spec, body_name, end, anchors)
+        flex = spec.flex(self.flex_name)
+        bodies = list(flex.vertbody)
+        # vertices at their own body's origin have no stored offsets
+        offsets = list(flex.vert) or [0.0] * (3 * len(bodies))
+        for v in self._end_vertices(end):
+            bodies[v] = body_name
+            point = self.attach_frame_point(end, np.array([v * seg, 0.0, 0.0]))
+            offsets[3 * v : 3 * v + 3] = point.tolist()
+        flex.vertbody = bodies
+        flex.vert = offsets
+        # only now: deleting a body the flex still names deletes the flex with it
+        for v in self._end_vertices(end):
+            spec.delete(spec.body(self.body_name(v)))
+        spec.delete(spec.body(self._end_twist(end)))
+        self._stabilize(spec, body_name)
+
+    def _stabilize(self, spec: mujoco.MjSpec, body_name: str) -> None:
+        """Armature on the clamping body's joints, so that its turn stays stable.
+
+        MuJoCo integrates the rod's twist implicitly in the rod's own joints but feeds the
+        clamped end's torque to the body explicitly: with the edge's torsional stiffness
+        k = G J / l and its Rayleigh damping beta k, a body of inertia I diverges once
+        k dt (dt + beta) / I passes ~1 (a 10 g plug, I ~ 2.5e-7 kg m^2 about its axis, blew up
+        in free fall within 25 steps).  An armature of k dt (dt + beta) keeps the ratio below
+        1 whatever the body; it adds ~1.7e-6 kg m^2 with the defaults (and as many kg to a
+        free joint's translation: nothing next to grams).
+        """
+        c = self.config
+        k = c.shear_modulus * 2.0 * c.second_moment / c.segment_length  # J = 2 I for a circle
+        dt = spec.option.timestep
+        armature = k * dt * (dt + c.damping)
+        body = spec.body(body_name)
+        for joint in body.joints:
+            joint.armature = max(joint.armature, armature)
 
     def _resolve(self, model: mujoco.MjModel) -> object:
         flex = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, self.flex_name)
@@ -110,10 +150,18 @@ class RodWire(WireHandle):
 
     def _twist_names(self) -> list[str]:
         n = self.config.segments
-        return [f"{self.flex_name}_twist_{e}" for e in range(n - 1)] + [f"{self.flex_name}_twist"]
+        names = [f"{self.flex_name}_twist_{e}" for e in range(n - 1)] + [f"{self.flex_name}_twist"]
+        clamped = {self._end_twist(end) for end in self.attached}
+        return [name for name in names if name not in clamped]
+
+    def _free_vertices(self) -> np.ndarray:
+        """Vertices with their own slide bodies (the clamped ends' belong to attached bodies)."""
+        clamped = {v for end in self.attached for v in self._end_vertices(end)}
+        return np.array([v for v in range(self.num_points) if v not in clamped], dtype=int)
 
     def _shape_ids(self, model: mujoco.MjModel) -> dict[str, np.ndarray]:
-        verts = np.asarray(self._resolve(model))
+        free = self._free_vertices()
+        verts = np.asarray(self._resolve(model))[free]
         flex = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, self.flex_name)
         bodies = model.flex_vertbodyid[verts]
         twists = []
@@ -129,6 +177,7 @@ class RodWire(WireHandle):
         if plastic[-1] >= model.nplastic:
             raise ValueError(f"flex {self.flex_name!r}: unexpected plastic layout")
         return {
+            "free": free,
             "bodies": bodies,
             "twists": np.asarray(twists),
             "joints": np.asarray(slides + twists),
@@ -136,9 +185,12 @@ class RodWire(WireHandle):
         }
 
     def _set_shape(self, model, data, ids, nodes, frames, roll) -> None:
-        set_slide_bodies(model, data, ids["bodies"], nodes)
+        # the clamped ends go with their bodies, which the caller places (set_centerline)
+        set_slide_bodies(model, data, ids["bodies"], nodes[ids["free"]])
         # Uniform material angle: no twist energy.  Zeroed reference frames make MuJoCo restart
         # them at the next step, transported from qpos0 onto the new tangents twist-free
         # (XMLreference, flex elasticity "State"), i.e. exactly the frames of this shape.
-        data.qpos[model.jnt_qposadr[ids["twists"]]] = roll
+        # A clamped start restarts the reference frames from its body, which the caller puts
+        # at the rolled pose: the material frames then need no twist of their own.
+        data.qpos[model.jnt_qposadr[ids["twists"]]] = 0.0 if "start" in self.attached else roll
         data.plastic[ids["plastic"]] = 0.0
