@@ -117,3 +117,40 @@ def test_the_cable_as_built_touches_neither_its_plug_nor_its_clamp(wire_model):
     mujoco.mj_forward(model, data)
     touching = [(c.geom, c.flex, c.elem, c.dist) for c in data.contact[: data.ncon]]
     assert touching == []
+
+
+@pytest.mark.parametrize("wire_model", WIRE_MODELS.names())
+def test_a_bolted_clamp_sits_where_the_wire_starts_as_built(wire_model):
+    """``attach`` wants each body at the wire's ``end_pose`` when the spec is built: a rod end
+    clamped in its body takes the as-built pose as its rest shape (a clamp bolted elsewhere
+    gave the rod a 20 cm first edge, and the seating task diverged at reset)."""
+    spec = new_spec("bolted")
+    exit_point, yaw = (0.3, -0.2, 0.02), 0.7
+    assembly = WireAssembly.build(
+        spec,
+        WireConfig(model=wire_model),
+        make_connector("ethernet"),
+        fixed_clamp=(exit_point, yaw),
+    )
+    model = compile_spec(spec)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    pos, quat = assembly.wire.end_pose("start")
+    clamp = model.body("clamp").id
+    assert np.allclose(data.xpos[clamp], exit_point, atol=1e-12)
+    assert np.allclose(pos, exit_point, atol=1e-12)
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, quat)
+    assert np.allclose(data.xmat[clamp], rot, atol=1e-12)
+    # the wire leaves the exit along the heading, as built
+    points = assembly.wire.points(model, data)
+    heading = (points[-1] - points[0]) / np.linalg.norm(points[-1] - points[0])
+    assert np.allclose(heading, (np.cos(yaw), np.sin(yaw), 0.0), atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_seating_with_the_rod_settles_at_the_first_attempt(seed):
+    env = wirecraft.make("seating", channel="curved", wire="rod")
+    _, info = env.reset(seed=seed)
+    env.close()
+    assert info["reset_attempts"] == 1 and not info["diverged"]

@@ -51,7 +51,24 @@ class WireAssembly:
         """The wire, its plug and its clamp.  ``fixed_clamp``: None for the free 0.2 kg clamp
         block; ``(exit, yaw)`` for a clamp bolted to the board with its wire exit at the world
         point ``exit`` and the wire leaving it horizontally at heading ``yaw`` (rad about z)."""
-        wire = add_wire(spec, wire_config, name="wire", pos=(0.0, 0.0, 0.05))
+        if fixed_clamp is None:
+            wire = add_wire(spec, wire_config, name="wire", pos=(0.0, 0.0, 0.05))
+        else:
+            exit_point, yaw = fixed_clamp
+            if exit_point[2] <= 0.0:
+                raise ValueError(f"fixed_clamp: the exit must be above the table, got {exit_point}")
+            # Built leaving the clamp's exit: a wire end clamped inside its body (the rod)
+            # takes the as-built pose as its rest shape, so the body must sit at end_pose.
+            # The gap depends on the config alone: read it off a scratch build.
+            gap = add_wire(mujoco.MjSpec(), wire_config, name="wire").end_gap
+            heading = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+            wire = add_wire(
+                spec,
+                wire_config,
+                name="wire",
+                pos=tuple(np.asarray(exit_point, float) + gap * heading),
+                quat=quat_about((0, 0, 1), yaw),
+            )
         pos, quat = wire.end_pose("end")
         add_plug(spec, connector, name="plug", pos=tuple(pos), quat=tuple(quat))
         wire.attach(spec, "end", "plug")
@@ -63,10 +80,8 @@ class WireAssembly:
             # behind it (+x, away from the wire): the cable leaves above low fixtures.
             drop = CLAMP_EXIT_DROP
         else:
-            exit_point, yaw = fixed_clamp
-            if exit_point[2] <= 0.0:
-                raise ValueError(f"fixed_clamp: the exit must be above the table, got {exit_point}")
             # The body's +x points away from the wire (wires/base.py): turned by yaw + pi.
+            # (This is the wire's end_pose("start"), written exactly.)
             clamp = spec.worldbody.add_body(
                 name="clamp", pos=tuple(exit_point), quat=quat_about((0, 0, 1), yaw + math.pi)
             )
