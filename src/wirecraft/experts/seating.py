@@ -144,6 +144,11 @@ class SeatingExpertConfig:
     lift_speed: float = 0.004  # m per step
     carry_speed: float = 0.006  # m per step
     lay_turn: bool = False  # turn the held plug onto the channel's last segment (carry .. place)
+    # The pads close across the plug's tail when its axis lies within this angle of the line
+    # they hold things along (the start orientation's); a plug lying farther round, they came
+    # down on its top (rod wire, 47-53 deg).  Beyond it the TCP turns by the excess about the
+    # vertical for the grasp and the lift, and back to the start orientation while carrying.
+    grasp_yaw_free: float = math.radians(35.0)
     # While the pads (the lowest part of the hand) pass over the channel during the lay and
     # the place, their bottoms stay this far above the wall tops (None: no such guard).  A pad
     # that came down on a wall near the channel's end was pried open by the arm pushing down,
@@ -342,6 +347,7 @@ class SeatingExpert(ScriptedExpert):
         ("press_end", (3,)),
         ("slide_dir", (3,)),
         ("start_rot", (3, 3)),
+        ("grasp_yaw", (1,)),
     )
     CONTROL = "cartesian"
     TASK = "seating"
@@ -454,24 +460,26 @@ class SeatingExpert(ScriptedExpert):
             if np.isnan(grasp).any():
                 self._take_grasp_goal(i)
                 grasp = fsm.get("grasp_pos")[i]
-            return grasp + cfg.hover * up, None, cfg.approach_speed, opened, None
+        grasp_rot = self._grasp_rot(i)
+        if name == "approach":
+            return grasp + cfg.hover * up, grasp_rot, cfg.approach_speed, opened, None
         if name == "descend":
-            return grasp, None, cfg.descend_speed, opened, None
+            return grasp, grasp_rot, cfg.descend_speed, opened, None
         if name == "settle":  # pads open, arm still: the plug and wire come to rest
             return (
                 grasp,
-                None,
+                grasp_rot,
                 cfg.descend_speed,
                 opened,
                 bool(fsm.steps[i] + 1 >= self.settle_needed[i]),
             )
         if name == "close":
             still = abs(env.robot.gripper_velocity(env.model, env.data)) < 0.005
-            return grasp, None, cfg.descend_speed, 1.0, bool(self._held(i) and still)
+            return grasp, grasp_rot, cfg.descend_speed, 1.0, bool(self._held(i) and still)
         if name == "lift":
             start = fsm.get("lift_from")[i]
             goal = start + (cfg.lift - self._height(i, start)) * up
-            return goal, None, cfg.lift_speed, 1.0, None
+            return goal, grasp_rot, cfg.lift_speed, 1.0, None
 
         # From here on the goals place the wire's end; the TCP keeps its offset to it
         # (re-measured each step in the TCP frame: the plug may turn in the pads) and turns
@@ -479,8 +487,11 @@ class SeatingExpert(ScriptedExpert):
         # last segment: the wire leaves the plug along the channel, between the pads.
         tcp, tcp_rot = self._tcp(i)
         rot = self._yawed(i, self._lay_yaw(i)) if cfg.lay_turn else tcp_rot
+        turned_back = not cfg.lay_turn and grasp_rot is not None and name == "carry"
+        if turned_back:  # turned for the grasp: the carry turns back to the start orientation
+            rot = self._start_rot(i)
         offset = rot @ tcp_rot.T @ (tcp - self._wire_end(i))
-        rot = rot if cfg.lay_turn else None
+        rot = rot if cfg.lay_turn or turned_back else None
         _, arc = self._path(i)
         lay_start = arc[-1] - cfg.lay_from
         if name == "carry":
@@ -925,6 +936,31 @@ class SeatingExpert(ScriptedExpert):
         up = self._up(i)
         grasp = grasp + (cfg.grasp_height - self._height(i, grasp)) * up
         self.fsm.snapshots["grasp_pos"][i] = grasp
+        self.fsm.snapshots["grasp_yaw"][i] = self._grasp_turn(i)
+
+    def _grasp_turn(self, i) -> float:
+        """Yaw (rad, about the vertical, from the start orientation) that brings the plug's axis
+        within ``grasp_yaw_free`` of the line the pads hold things along; 0 when it lies there."""
+        env = self.envs[i]
+        data = env.data
+        up = self._up(i)
+        base_rot = self._base(i)[1]
+        # the pads' closing direction at the start orientation, from where they are now
+        left, right = (data.geom_xpos[env.model.geom(n).id] for n in env.robot.pad_geom_names)
+        tcp_rot = data.site_xmat[env.task.tcp_site].reshape(3, 3)
+        closing = self._start_rot(i) @ (tcp_rot.T @ (right - left))
+        along = horizontal(np.cross(up, closing), up)
+        side = np.cross(up, along)
+        axis = base_rot.T @ env.task.assembly.plug_pose(data)[1][:, 0]
+        angle = math.atan2(float(axis @ side), float(axis @ along))
+        angle = (angle + math.pi / 2) % math.pi - math.pi / 2  # a line: fold into +/-90 deg
+        excess = abs(angle) - self.config.grasp_yaw_free
+        return math.copysign(excess, angle) if excess > 0 else 0.0
+
+    def _grasp_rot(self, i) -> np.ndarray | None:
+        """Goal orientation of the grasp phases: None (hold) unless the grasp turns."""
+        yaw = float(self.fsm.get("grasp_yaw")[i, 0])
+        return self._yawed(i, yaw) if np.isfinite(yaw) and yaw != 0.0 else None
 
     def _on_advance(self, advanced: np.ndarray, before: np.ndarray) -> None:
         fsm, cfg = self.fsm, self.config
