@@ -701,3 +701,31 @@ def test_pressing_pad_does_not_drive_the_wire_into_the_floor():
     assert sunk < 0.0025
     assert not info["diverged"]
     assert info["success"] and info["fraction_inside"] >= 0.8
+
+
+def test_a_plug_lying_far_round_is_grasped_with_a_turned_tcp():
+    """Rod wire, seed 1059: the plug lands about 50 deg round from the line the pads hold things
+    along, and with the start orientation they came down on its top (two failed grasps).  The
+    expert turns the TCP by the excess over ``grasp_yaw_free`` and grasps at the first try,
+    then turns back while carrying."""
+    env = wirecraft.make("seating", channel="curved", wire="rod", control=SeatingExpert.CONTROL)
+    expert = SeatingExpert(env, SeatingExpertConfig(seed=1059))
+    obs, _ = env.reset(seed=1059)
+    expert.reset()
+    u = env.unwrapped
+    tcp_x = u.data.site_xmat[u.task.tcp_site].reshape(3, 3)[:, 0].copy()
+    plug_x = u.task.assembly.plug_pose(u.data)[1][:, 0]
+    # the pads close across the TCP's x axis here: the plug's axis as a line, from that axis
+    lie = math.degrees(math.acos(abs(tcp_x[:2] @ plug_x[:2]) / np.linalg.norm(plug_x[:2])))
+    assert lie > 45.0, lie
+    turned_at_close = None
+    while expert.phase_names[0] != "lay":
+        obs, *_ = env.step(expert.act(obs)[0])
+        if expert.phase_names[0] == "close":
+            x = u.data.site_xmat[u.task.tcp_site].reshape(3, 3)[:, 0]
+            turned_at_close = math.degrees(math.acos(np.clip(x[:2] @ tcp_x[:2], -1.0, 1.0)))
+    free = math.degrees(SeatingExpertConfig().grasp_yaw_free)
+    assert turned_at_close == pytest.approx(lie - free, abs=2.0)
+    assert expert.grasp_retries[0] == 0 and expert._held(0)
+    x = u.data.site_xmat[u.task.tcp_site].reshape(3, 3)[:, 0]
+    assert math.degrees(math.acos(np.clip(x[:2] @ tcp_x[:2], -1.0, 1.0))) < 2.0
