@@ -114,6 +114,15 @@ def test_attach_rejects_bad_end_and_body():
         wire.attach(spec, "end", "nope")
 
 
+def test_attaching_a_rod_of_two_segments_is_refused():
+    """MuJoCo clamps a rod's last edge only when the rod has at least three edges."""
+    spec = scene.new_spec()
+    wire = add_wire(spec, WireConfig(model="rod", segments=2), name="wire")
+    spec.worldbody.add_body(name="holder")
+    with pytest.raises(ValueError, match=">= 3 segments"):
+        wire.attach(spec, "end", "holder")
+
+
 def test_two_wires_in_one_spec():
     spec = scene.new_spec()
     wires = [

@@ -123,7 +123,7 @@ class RodWire(WireHandle):
         k = G J / l and its Rayleigh damping beta k, a body of inertia I diverges once
         k dt (dt + beta) / I passes ~1 (a 10 g plug, I ~ 2.5e-7 kg m^2 about its axis, blew up
         in free fall within 25 steps).  An armature of k dt (dt + beta) keeps the ratio below
-        1 whatever the body; it adds ~1.7e-6 kg m^2 with the defaults (and as many kg to a
+        1 whatever the body; it adds ~1.8e-6 kg m^2 with the defaults (and as many kg to a
         free joint's translation: nothing next to grams).
         """
         c = self.config
