@@ -940,20 +940,10 @@ class SeatingExpert(ScriptedExpert):
 
     def _grasp_turn(self, i) -> float:
         """Yaw (rad, about the vertical, from the start orientation) that brings the plug's axis
-        within ``grasp_yaw_free`` of the line the pads hold things along; 0 when it lies there."""
-        env = self.envs[i]
-        data = env.data
-        up = self._up(i)
-        base_rot = self._base(i)[1]
-        # the pads' closing direction at the start orientation, from where they are now
-        left, right = (data.geom_xpos[env.model.geom(n).id] for n in env.robot.pad_geom_names)
-        tcp_rot = data.site_xmat[env.task.tcp_site].reshape(3, 3)
-        closing = self._start_rot(i) @ (tcp_rot.T @ (right - left))
-        along = horizontal(np.cross(up, closing), up)
-        side = np.cross(up, along)
-        axis = base_rot.T @ env.task.assembly.plug_pose(data)[1][:, 0]
-        angle = math.atan2(float(axis @ side), float(axis @ along))
-        angle = (angle + math.pi / 2) % math.pi - math.pi / 2  # a line: fold into +/-90 deg
+        within ``grasp_yaw_free`` of the pads' long side, along which they hold it; 0 when it
+        lies there."""
+        axis = self.envs[i].task.assembly.plug_pose(self.envs[i].data)[1][:, 0]
+        angle = float(self._pad_turns(i, np.array([math.atan2(axis[1], axis[0])]))[0])
         excess = abs(angle) - self.config.grasp_yaw_free
         return math.copysign(excess, angle) if excess > 0 else 0.0
 
