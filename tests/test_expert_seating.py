@@ -351,6 +351,9 @@ def test_press_passes_follow_their_directions():
         ("lay_slowdown", None),
         ("settle_jitter", -1),
         ("max_grasp_retries", 1.5),
+        ("grasp_yaw_free", -0.1),
+        ("grasp_yaw_free", 2.0),
+        ("grasp_yaw_free", float("nan")),
     ],
 )
 def test_bad_distances_speeds_and_counts_are_refused(field, value):

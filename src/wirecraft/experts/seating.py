@@ -297,6 +297,8 @@ class SeatingExpertConfig:
             if getattr(self, name) is not None:
                 validation.non_negative(owner, name, getattr(self, name))
         validation.non_negative(owner, "lay_wall_reach", self.lay_wall_reach)
+        # the pads' long side has no front: a plug's axis lies at most 90 deg from it
+        validation.in_range(owner, "grasp_yaw_free", self.grasp_yaw_free, 0.0, math.pi / 2)
         # Either sign: below (+) or above (-) a seated wire's top.
         for name in ("press_squeeze", "press_squeeze_fem"):
             validation.finite(owner, name, getattr(self, name))
