@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from wirecraft import scene
-from wirecraft.assets.wires import WIRE_MODELS, WireConfig, add_wire
+from wirecraft.assets.wires import WIRE_MODELS, WireConfig, add_wire, end_gap
+from wirecraft.assets.wires.base import END_CLEARANCE
 
 MODELS = WIRE_MODELS.names()
 
@@ -134,3 +135,17 @@ def test_two_wires_in_one_spec():
     mujoco.mj_forward(m, d)
     for i, wire in enumerate(wires):
         np.testing.assert_allclose(wire.points(m, d)[:, 1], 0.05 * i, atol=1e-6)
+
+
+@pytest.mark.parametrize("model", MODELS)
+@pytest.mark.parametrize("radius", [0.002, 0.0045])
+def test_end_gap_is_known_before_the_wire_is_built(model, radius):
+    """A task places bodies by ``end_gap(config)`` before it builds the wire: it must equal the
+    collision reach past the end point that the compiled flex has, plus the clearance."""
+    config = WireConfig(model=model, radius=radius)
+    spec = scene.new_spec()
+    wire = add_wire(spec, config, name="w")
+    m = scene.compile_spec(spec)
+    flex_reach = float(m.flex_radius[0]) + END_CLEARANCE if m.nflex else 0.0
+    assert end_gap(config) == pytest.approx(flex_reach, abs=1e-12)
+    assert wire.end_gap == pytest.approx(flex_reach, abs=1e-12)

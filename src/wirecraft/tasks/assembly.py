@@ -22,7 +22,7 @@ import numpy as np
 from wirecraft import physics
 from wirecraft.assets.connectors import Connector, add_plug
 from wirecraft.assets.shapes import Box, add_to_body, quat_about
-from wirecraft.assets.wires import WireConfig, WireHandle, add_wire
+from wirecraft.assets.wires import WireConfig, WireHandle, add_wire, end_gap
 from wirecraft.sensors import Contacts, body_geom_ids, flex_ids, quat_to_mat
 
 CLAMP_HALF = (0.02, 0.015, 0.012)  # m
@@ -59,14 +59,12 @@ class WireAssembly:
                 raise ValueError(f"fixed_clamp: the exit must be above the table, got {exit_point}")
             # Built leaving the clamp's exit: a wire end clamped inside its body (the rod)
             # takes the as-built pose as its rest shape, so the body must sit at end_pose.
-            # The gap depends on the config alone: read it off a scratch build.
-            gap = add_wire(mujoco.MjSpec(), wire_config, name="wire").end_gap
             heading = np.array([math.cos(yaw), math.sin(yaw), 0.0])
             wire = add_wire(
                 spec,
                 wire_config,
                 name="wire",
-                pos=tuple(np.asarray(exit_point, float) + gap * heading),
+                pos=tuple(np.asarray(exit_point, float) + end_gap(wire_config) * heading),
                 quat=quat_about((0, 0, 1), yaw),
             )
         pos, quat = wire.end_pose("end")

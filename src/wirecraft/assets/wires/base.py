@@ -204,11 +204,16 @@ class WireHandle(ABC):
         out = np.array([self.pos + _rotate(self.quat, p) for p in flat])
         return out.reshape(local.shape)
 
+    @classmethod
+    def gap_for(cls, config: WireConfig) -> float:
+        """m from the wire's end point to the origin of a body attached there (module docstring),
+        for a resolved ``config``: 0 unless the model's collision surface reaches past its end
+        point.  A class method, so that a task can place a body before the wire is built."""
+        return 0.0
+
     @property
     def end_gap(self) -> float:
-        """m from the wire's end point to the origin of a body attached there (module docstring):
-        0 unless the model's collision surface reaches past its end point."""
-        return 0.0
+        return self.gap_for(self.config)
 
     def end_pose_local(self, end: str) -> tuple[np.ndarray, np.ndarray]:
         """Pose of an attached body in the wire frame (see the module's convention)."""
@@ -479,3 +484,8 @@ def add_wire(
     """
     config = config if config is not None else WireConfig()
     return WIRE_MODELS.get(config.model)(spec, config, name, pos, quat)
+
+
+def end_gap(config: WireConfig) -> float:
+    """The ``end_gap`` a wire built from ``config`` will have, without building it."""
+    return WIRE_MODELS.get(config.model).gap_for(config.resolved())

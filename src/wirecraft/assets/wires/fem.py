@@ -31,9 +31,18 @@ from wirecraft.assets.wires.base import (
     END_CLEARANCE,
     FLEX,
     WIRE_MODELS,
+    WireConfig,
     WireHandle,
     set_slide_bodies,
 )
+
+
+def _square_side(radius: float) -> float:
+    return radius * (3.0 * math.pi) ** 0.25
+
+
+def _flex_radius(radius: float) -> float:
+    return radius - _square_side(radius) / 2
 
 
 @WIRE_MODELS.register("fem")
@@ -61,16 +70,16 @@ class FemWire(WireHandle):
     @property
     def side(self) -> float:
         """m, side of the square elastic cross-section (same second moment as the circle)."""
-        return self.config.radius * (3.0 * math.pi) ** 0.25
+        return _square_side(self.config.radius)
 
     @property
     def flex_radius(self) -> float:
         """m the collision surface reaches beyond the nodes: pads the square out to the radius."""
-        return self.config.radius - self.side / 2
+        return _flex_radius(self.config.radius)
 
-    @property
-    def end_gap(self) -> float:
-        return self.flex_radius + END_CLEARANCE
+    @classmethod
+    def gap_for(cls, config: WireConfig) -> float:
+        return _flex_radius(config.radius) + END_CLEARANCE
 
     @property
     def locking_factor(self) -> float:

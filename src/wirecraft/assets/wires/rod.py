@@ -22,6 +22,7 @@ from wirecraft.assets.wires.base import (
     END_CLEARANCE,
     FLEX,
     WIRE_MODELS,
+    WireConfig,
     WireHandle,
     set_slide_bodies,
 )
@@ -49,10 +50,10 @@ class RodWire(WireHandle):
     def num_points(self) -> int:
         return self.config.segments + 1
 
-    @property
-    def end_gap(self) -> float:
+    @classmethod
+    def gap_for(cls, config: WireConfig) -> float:
         # the end edge's capsule reaches one radius past the end vertex
-        return self.config.radius + END_CLEARANCE
+        return config.radius + END_CLEARANCE
 
     def body_name(self, vertex: int) -> str:
         return f"{self.flex_name}_{vertex}"
