@@ -80,7 +80,8 @@ def main() -> None:
             failures.append(
                 f"seed {seed}: routed {info['clips_routed']}/{args.num_clips}, "
                 f"phase {expert.phase_names[0]}, clip {expert.clip[0]}, "
-                f"routings per clip {expert.tries[0, : args.num_clips].tolist()}"
+                f"routings per clip {expert.tries[0, : args.num_clips].tolist()}, "
+                + ("never routed" if first is None else f"routed at step {first}, lost after")
                 + (f", diverged at step {step}" if info["diverged"] else "")
             )
         if args.verbose:

@@ -70,9 +70,10 @@ class RouteLayout:
     wire_angle: tuple[float, float]  # rad off the lane, towards the robot
     max_across: float  # m: largest offset across the lane between neighbouring clips
 
-    def route_length(self, clip_x) -> float:
-        """m of centre line from the clamp through every slot centre (straight hops)."""
-        xs = np.concatenate([[LANE_X], np.asarray(clip_x, float)])
+    def route_length(self, clip_offsets) -> float:
+        """m of centre line from the clamp through every slot centre (straight hops), for clips
+        at ``clip_offsets`` (m) across the lane from the clamp: the same on every robot's lane."""
+        xs = np.concatenate([[0.0], np.asarray(clip_offsets, float)])
         ys = np.concatenate([[self.clamp_y], self.clip_y])
         return float(np.hypot(np.diff(xs), np.diff(ys)).sum())
 
