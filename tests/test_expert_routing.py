@@ -417,6 +417,37 @@ def test_a_retry_grasps_at_a_joint_only_near_the_taut_length(beyond):
     env.close()
 
 
+@pytest.mark.parametrize("joint_past_slot", [0.012, 0.020])
+def test_a_joint_the_pads_cannot_bring_out_far_enough_goes_into_the_clip(joint_past_slot):
+    """The push's pads go where the first joint past the slot centre lies ``link_joint`` past
+    it.  With the pads already at ``max_front`` and that joint nearer (12 mm, just beyond the
+    clip), the pads come back instead, until the joint lies between the clip's faces; a joint
+    that can be brought out (20 mm) is brought out to ``link_joint``, as before."""
+    env = wirecraft.make("routing")
+    env.reset(seed=0)
+    expert = RoutingExpert(env)
+    cfg = expert.config
+    u = env.unwrapped
+    clip = u.task.placed_clips(u.data)[0]
+    axis = np.array([np.cos(clip.yaw), np.sin(clip.yaw), 0.0])
+    slot = np.array(clip.pos) + [0.0, 0.0, clip.config.base_height + 0.005]
+    link = 0.033
+    nodes = slot + np.outer(joint_past_slot + link * np.arange(-3, 3), axis)
+    u.wire_points = lambda: nodes
+    tcp_along = cfg.max_front
+    u.data.site_xpos[u.task.tcp_site] = slot + tcp_along * axis  # the pads at max_front
+    front = expert._link_front(0, 1.0)
+    assert cfg.min_front <= front <= cfg.max_front
+    joint_after = joint_past_slot + (front - tcp_along)  # the held link moves with the pads
+    if tcp_along + cfg.link_joint - joint_past_slot <= cfg.max_front:
+        assert joint_after == pytest.approx(cfg.link_joint, abs=1e-9)
+    else:
+        assert abs(joint_after) <= clip.config.length / 2
+        kept = RoutingExpert(env, RoutingExpertConfig(joint_inside=False))
+        assert kept._link_front(0, 1.0) == pytest.approx(cfg.max_front, abs=1e-9)
+    env.close()
+
+
 @pytest.mark.parametrize(
     "field, value",
     [

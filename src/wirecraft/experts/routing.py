@@ -43,7 +43,8 @@ base frame.
   over-stretch along the frozen direction until the free wire is straight, pull back
   to the clip front on the slot axis, far side, correcting sideways until the wire crosses
   the clip's mid-plane over the slot centre, with the pads where they hold the link of the
-  wire that spans the slot (``_link_front``); push down until the wire is seated, the pose
+  wire that spans the slot (``_link_front``; or, where they cannot reach that far, with a
+  joint between the clip's faces); push down until the wire is seated, the pose
   is reached or the wrist feels ``push_force`` (seated: ``push_seated_margin`` below the
   lips; a wire released just past them sprang back out); release, retreat.  Swing, raise and
   stretch end early once the TCP stalls with the pads turned (the held wire is taut from the
@@ -97,6 +98,12 @@ class RoutingExpertConfig:
     min_front: float = 0.018  # m: the nearest the pads' centre may come (1.5 mm off the clip)
     max_front: float = 0.030  # m
     link_joint: float = 0.018  # m past the slot centre for the joint that ends the slot's link
+    # m past the slot centre for that joint when ``max_front`` keeps it short of ``link_joint``:
+    # between the uprights, both links at the joint drop in; left 6-16 mm past the slot centre
+    # the joint pivoted under the push and levered the slot's link up on the lips (every
+    # routing of the failing clip in the 3-clip failures traced, validation seeds)
+    inside_joint: float = 0.002
+    joint_inside: bool = True  # False: such a joint stays where max_front leaves it
     push_height: float = 0.008  # m: TCP above the table at the end of the push
     grasp_slack: float = 0.003  # m of wire beyond the taut anchor-to-front length at a grasp
     grasp_spacing: float = 0.005  # m between candidate grasp points along the centre line
@@ -606,8 +613,11 @@ class RoutingExpert(ScriptedExpert):
         A wire made of rigid links (the articulated wire's 33 mm capsules) is pushed into the
         slot by the link that spans it; the pads must hold that link, not the next one, whose
         joint would sit on the lips and pivot there.  So the pads go where the first joint past
-        the slot centre lies ``link_joint`` past it, within [``min_front``, ``max_front``].  A
-        wire with nodes closer than the clip is long (rod, FEM) bends anywhere: ``front``."""
+        the slot centre lies ``link_joint`` past it, within [``min_front``, ``max_front``].
+        When ``max_front`` keeps that joint nearer, the pads come back until it lies between
+        the clip's faces (``inside_joint``) instead: left just beyond the clip, it pivoted and
+        levered the slot's link up on the lips at every routing.  A wire with nodes closer
+        than the clip is long (rod, FEM) bends anywhere: ``front``."""
         cfg, env = self.config, self.envs[i]
         clip = env.task.placed_clips(env.data)[self.clip[i]]
         if not self._rigid_links(i):
@@ -628,7 +638,10 @@ class RoutingExpert(ScriptedExpert):
                 front = tcp_along + cfg.retry_joint - joint
                 return float(np.clip(front, cfg.min_front, cfg.max_front))
         joint = along[beyond].min()
-        return float(np.clip(tcp_along + cfg.link_joint - joint, cfg.min_front, cfg.max_front))
+        front = tcp_along + cfg.link_joint - joint
+        if front > cfg.max_front and cfg.joint_inside:
+            front = tcp_along + cfg.inside_joint - joint
+        return float(np.clip(front, cfg.min_front, cfg.max_front))
 
     def _force_stop(self, i, limit) -> bool:
         """Whether the push or press of environment ``i`` has met resistance: the wrist force
