@@ -110,6 +110,10 @@ class RoutingExpertConfig:
     clip_clearance: float = 0.03  # m (horizontal) between a grasp point and any clip centre
     plug_clearance: float = 0.02  # m of wire kept between the grasp point and the plug
     pre_open: float = 0.03  # m pad gap before closing
+    # m: approach and descend follow the grasp point as the wire settles, at most this far from
+    # where it was planned: a wire caught on an open pad rose with the TCP, and following it
+    # carried it off the table (Panda, held-out seed 1025: the cable fell until it "diverged")
+    follow_reach: float = 0.04
     descend_speed: float = 0.006  # m per step
     carry_speed: float = 0.008  # m per step
     push_speed: float = 0.002  # m per step
@@ -158,7 +162,7 @@ class RoutingExpertConfig:
 
     def __post_init__(self) -> None:
         owner = "RoutingExpertConfig"
-        for name in ("retry_joint_spare", "trail_check"):
+        for name in ("retry_joint_spare", "trail_check", "follow_reach"):
             validation.non_negative(owner, name, getattr(self, name))
         for name in ("carry_height", "flex_carry_height"):
             validation.positive(owner, name, getattr(self, name))
@@ -212,6 +216,7 @@ class RoutingExpert(ScriptedExpert):
         self.seated_steps = np.zeros(self.num_envs, int)  # steps in a row a carry saw it seated
         self.trail_near_clip = np.zeros(self.num_envs, bool)  # set as the grasp closes
         self.grasp_arc = np.zeros(self.num_envs)  # m along the wire of the current grasp
+        self.planned_grasp = np.zeros((self.num_envs, 3))  # base frame, where it was planned
         self.free_wire = np.zeros(self.num_envs)  # m of wire between anchor and grasp
         self.held_below = np.full(self.num_envs, self.config.wire_below_tcp)  # m: held wire's
         # centre below the TCP
@@ -235,6 +240,7 @@ class RoutingExpert(ScriptedExpert):
         # Everything an episode learns about its wire starts afresh: an episode depends on its
         # seed only, not on the episodes the environment ran before.
         self.grasp_arc[mask] = 0.0
+        self.planned_grasp[mask] = 0.0
         self.free_wire[mask] = 0.0
         self.held_below[mask] = self.config.wire_below_tcp
         self.front[mask] = self.config.front
@@ -380,6 +386,7 @@ class RoutingExpert(ScriptedExpert):
         self.fsm.snapshots["anchor"][i] = anchor
         self.fsm.snapshots["direction"][i] = horizontal(slot - anchor, up)
         self.grasp_arc[i] = arc[k]
+        self.planned_grasp[i] = self.fsm.snapshots["grasp_pos"][i]
         self.free_wire[i] = arc[k] - anchor_arc
 
     def _rigid_links(self, i) -> bool:
@@ -711,8 +718,12 @@ class RoutingExpert(ScriptedExpert):
             if np.isnan(grasp_pos).any():
                 self._plan_grasp(i)
                 grasp_rot = fsm.get("grasp_rot")[i]
-            # the wire may still be settling after the last release: follow its grasp point
-            grasp_pos = fsm.snapshots["grasp_pos"][i] = self._grasp_point(i, self.grasp_arc[i])
+            # the wire may still be settling after the last release: follow its grasp point,
+            # but not far (a wire caught on a pad would lead the TCP away)
+            settled = self._grasp_point(i, self.grasp_arc[i])
+            if np.linalg.norm(settled - self.planned_grasp[i]) <= cfg.follow_reach:
+                fsm.snapshots["grasp_pos"][i] = settled
+            grasp_pos = fsm.snapshots["grasp_pos"][i]
         if name == "approach":
             return grasp_pos + cfg.hover * up, grasp_rot, fast, open_cmd, None
         if name == "descend":
