@@ -296,8 +296,8 @@ def test_grasp_point_follows_the_wire_where_it_lies_now():
 
 def test_approach_follows_a_settling_wire_but_not_one_carried_away():
     """Approach and descend aim at the planned grasp point as the wire lies now: a wire that
-    settles 2 cm is followed; one that rises 10 cm (caught on an open pad, moving with the
-    TCP) is not, or the TCP would chase it off the table."""
+    settles 2 cm is followed; one that rises 10 cm, or touches a pad (caught on an open pad, it
+    moves with the TCP), is not, or the TCP would chase it off the table."""
     env = wirecraft.make("routing")
     env.reset(seed=0)
     expert = RoutingExpert(env)
@@ -316,6 +316,11 @@ def test_approach_follows_a_settling_wire_but_not_one_carried_away():
     np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
     carried = settled + [0.0, 0.0, 0.10]
     u.wire_points = lambda: carried
+    goal = expert._goals(0)[0]
+    np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
+    on_pad = settled + [0.0, 0.01, 0.0]  # near, but touching the right pad
+    u.wire_points = lambda: on_pad
+    u.task.pad_contacts = lambda model, data, geoms: (False, True)
     goal = expert._goals(0)[0]
     np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
     env.close()

@@ -110,10 +110,11 @@ class RoutingExpertConfig:
     clip_clearance: float = 0.03  # m (horizontal) between a grasp point and any clip centre
     plug_clearance: float = 0.02  # m of wire kept between the grasp point and the plug
     pre_open: float = 0.03  # m pad gap before closing
-    # m: approach and descend follow the grasp point as the wire settles, at most this far from
-    # where it was planned: a wire caught on an open pad rose with the TCP, and following it
-    # carried it off the table (Panda, held-out seed 1025: the cable fell until it "diverged")
-    follow_reach: float = 0.04
+    # m: approach and descend follow the grasp point as the wire settles, while no pad touches
+    # it and at most this far from where it was planned: a wire caught on an open pad rose
+    # with the TCP, and following it carried it off the table (Panda, held-out seed 1025: the
+    # cable fell until it "diverged")
+    follow_reach: float = 0.08
     descend_speed: float = 0.006  # m per step
     carry_speed: float = 0.008  # m per step
     push_speed: float = 0.002  # m per step
@@ -719,9 +720,12 @@ class RoutingExpert(ScriptedExpert):
                 self._plan_grasp(i)
                 grasp_rot = fsm.get("grasp_rot")[i]
             # the wire may still be settling after the last release: follow its grasp point,
-            # but not far (a wire caught on a pad would lead the TCP away)
+            # but not a wire on a pad, nor far (a wire caught on a pad leads the TCP away)
             settled = self._grasp_point(i, self.grasp_arc[i])
-            if np.linalg.norm(settled - self.planned_grasp[i]) <= cfg.follow_reach:
+            touching = any(
+                env.task.pad_contacts(env.model, env.data, env.task.assembly.wire_contacts)
+            )
+            if not touching and np.linalg.norm(settled - self.planned_grasp[i]) <= cfg.follow_reach:
                 fsm.snapshots["grasp_pos"][i] = settled
             grasp_pos = fsm.snapshots["grasp_pos"][i]
         if name == "approach":
