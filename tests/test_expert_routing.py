@@ -296,8 +296,9 @@ def test_grasp_point_follows_the_wire_where_it_lies_now():
 
 def test_approach_follows_a_settling_wire_but_not_one_carried_away():
     """Approach and descend aim at the planned grasp point as the wire lies now: a wire that
-    settles 2 cm is followed; one that rises 10 cm, or touches a pad (caught on an open pad, it
-    moves with the TCP), is not, or the TCP would chase it off the table."""
+    settles 2 cm, or springs 8 cm sideways along the table, is followed; one lifted 10 cm
+    (caught on an open pad, it rises with the TCP) is not, or the TCP would chase it off the
+    table."""
     env = wirecraft.make("routing")
     env.reset(seed=0)
     expert = RoutingExpert(env)
@@ -306,7 +307,7 @@ def test_approach_follows_a_settling_wire_but_not_one_carried_away():
     assert expert.phase_names[0] == "approach"
     u = env.unwrapped
     up = expert._up(0)
-    planned = expert.planned_grasp[0].copy()
+    planned = expert.fsm.snapshots["grasp_pos"][0].copy()
     lying = u.wire_points().copy()
     settled = lying + [0.0, 0.02, 0.0]
     u.wire_points = lambda: settled
@@ -314,13 +315,14 @@ def test_approach_follows_a_settling_wire_but_not_one_carried_away():
     followed = expert._grasp_point(0, expert.grasp_arc[0])
     assert np.linalg.norm(followed - planned) == pytest.approx(0.02, abs=1e-6)
     np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
-    carried = settled + [0.0, 0.0, 0.10]
-    u.wire_points = lambda: carried
+    sprung = lying + [0.08, 0.0, 0.0]
+    u.wire_points = lambda: sprung
     goal = expert._goals(0)[0]
+    followed = expert._grasp_point(0, expert.grasp_arc[0])
+    assert np.linalg.norm(followed - planned) == pytest.approx(0.08, abs=1e-6)
     np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
-    on_pad = settled + [0.0, 0.01, 0.0]  # near, but touching the right pad
-    u.wire_points = lambda: on_pad
-    u.task.pad_contacts = lambda model, data, geoms: (False, True)
+    carried = sprung + [0.0, 0.0, 0.15]
+    u.wire_points = lambda: carried
     goal = expert._goals(0)[0]
     np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
     env.close()
@@ -489,7 +491,7 @@ def test_a_joint_the_pads_cannot_bring_out_far_enough_goes_into_the_clip(joint_p
         ("seated_early_steps", 2.5),
         ("carry_height", 0.0),
         ("flex_carry_height", -0.03),
-        ("follow_reach", -0.01),
+        ("follow_height", -0.01),
     ],
 )
 def test_refuses_bad_settings(field, value):

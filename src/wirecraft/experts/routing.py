@@ -110,11 +110,12 @@ class RoutingExpertConfig:
     clip_clearance: float = 0.03  # m (horizontal) between a grasp point and any clip centre
     plug_clearance: float = 0.02  # m of wire kept between the grasp point and the plug
     pre_open: float = 0.03  # m pad gap before closing
-    # m: approach and descend follow the grasp point as the wire settles, while no pad touches
-    # it and at most this far from where it was planned: a wire caught on an open pad rose
-    # with the TCP, and following it carried it off the table (Panda, held-out seed 1025: the
-    # cable fell until it "diverged")
-    follow_reach: float = 0.08
+    # m: approach and descend follow the grasp point as the wire settles, while it lies at most
+    # this high above the table: a wire caught on an open pad rose with the TCP, and following
+    # it carried it off the table (Panda, held-out seed 1025: the cable fell until it
+    # "diverged"); a wire springing out of a clip after a release moves up to 10 cm, and rises
+    # to 7 cm for a few steps
+    follow_height: float = 0.10
     descend_speed: float = 0.006  # m per step
     carry_speed: float = 0.008  # m per step
     push_speed: float = 0.002  # m per step
@@ -163,7 +164,7 @@ class RoutingExpertConfig:
 
     def __post_init__(self) -> None:
         owner = "RoutingExpertConfig"
-        for name in ("retry_joint_spare", "trail_check", "follow_reach"):
+        for name in ("retry_joint_spare", "trail_check", "follow_height"):
             validation.non_negative(owner, name, getattr(self, name))
         for name in ("carry_height", "flex_carry_height"):
             validation.positive(owner, name, getattr(self, name))
@@ -217,7 +218,6 @@ class RoutingExpert(ScriptedExpert):
         self.seated_steps = np.zeros(self.num_envs, int)  # steps in a row a carry saw it seated
         self.trail_near_clip = np.zeros(self.num_envs, bool)  # set as the grasp closes
         self.grasp_arc = np.zeros(self.num_envs)  # m along the wire of the current grasp
-        self.planned_grasp = np.zeros((self.num_envs, 3))  # base frame, where it was planned
         self.free_wire = np.zeros(self.num_envs)  # m of wire between anchor and grasp
         self.held_below = np.full(self.num_envs, self.config.wire_below_tcp)  # m: held wire's
         # centre below the TCP
@@ -241,7 +241,6 @@ class RoutingExpert(ScriptedExpert):
         # Everything an episode learns about its wire starts afresh: an episode depends on its
         # seed only, not on the episodes the environment ran before.
         self.grasp_arc[mask] = 0.0
-        self.planned_grasp[mask] = 0.0
         self.free_wire[mask] = 0.0
         self.held_below[mask] = self.config.wire_below_tcp
         self.front[mask] = self.config.front
@@ -387,7 +386,6 @@ class RoutingExpert(ScriptedExpert):
         self.fsm.snapshots["anchor"][i] = anchor
         self.fsm.snapshots["direction"][i] = horizontal(slot - anchor, up)
         self.grasp_arc[i] = arc[k]
-        self.planned_grasp[i] = self.fsm.snapshots["grasp_pos"][i]
         self.free_wire[i] = arc[k] - anchor_arc
 
     def _rigid_links(self, i) -> bool:
@@ -720,12 +718,9 @@ class RoutingExpert(ScriptedExpert):
                 self._plan_grasp(i)
                 grasp_rot = fsm.get("grasp_rot")[i]
             # the wire may still be settling after the last release: follow its grasp point,
-            # but not a wire on a pad, nor far (a wire caught on a pad leads the TCP away)
+            # but not up (a wire caught on a pad rises with the TCP and would lead it away)
             settled = self._grasp_point(i, self.grasp_arc[i])
-            touching = any(
-                env.task.pad_contacts(env.model, env.data, env.task.assembly.wire_contacts)
-            )
-            if not touching and np.linalg.norm(settled - self.planned_grasp[i]) <= cfg.follow_reach:
+            if np.dot(settled - self._table_height(i, 0.0), up) <= cfg.follow_height:
                 fsm.snapshots["grasp_pos"][i] = settled
             grasp_pos = fsm.snapshots["grasp_pos"][i]
         if name == "approach":
