@@ -296,7 +296,7 @@ def test_grasp_point_follows_the_wire_where_it_lies_now():
 
 def test_approach_follows_a_settling_wire_but_not_one_carried_away():
     """Approach and descend aim at the planned grasp point as the wire lies now: a wire that
-    settles 2 cm, or springs 8 cm sideways along the table, is followed; one lifted 10 cm
+    settles 2 cm, or springs 8 cm sideways along the table, is followed; one lifted 15 cm
     (caught on an open pad, it rises with the TCP) is not, or the TCP would chase it off the
     table."""
     env = wirecraft.make("routing")
