@@ -296,9 +296,9 @@ def test_grasp_point_follows_the_wire_where_it_lies_now():
 
 def test_approach_follows_a_settling_wire_but_not_one_carried_away():
     """Approach and descend aim at the planned grasp point as the wire lies now: a wire that
-    settles 2 cm, or springs 8 cm sideways along the table, is followed; one lifted 15 cm
-    (caught on an open pad, it rises with the TCP) is not, or the TCP would chase it off the
-    table."""
+    settles 2 cm, or springs 8 cm sideways along the table, is followed; for one lifted 15 cm
+    (caught on an open pad, it rises with the TCP) the approach waits where it was, or the TCP
+    would chase it off the table."""
     env = wirecraft.make("routing")
     env.reset(seed=0)
     expert = RoutingExpert(env)
@@ -321,10 +321,12 @@ def test_approach_follows_a_settling_wire_but_not_one_carried_away():
     followed = expert._grasp_point(0, expert.grasp_arc[0])
     assert np.linalg.norm(followed - planned) == pytest.approx(0.08, abs=1e-6)
     np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
+    assert expert._goals(0)[4] is None  # the pose decides when the approach ends
     carried = sprung + [0.0, 0.0, 0.15]
     u.wire_points = lambda: carried
-    goal = expert._goals(0)[0]
+    goal, _, _, _, reached = expert._goals(0)
     np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
+    assert reached is False  # waits for the wire to come down (or the phase's timeout)
     env.close()
 
 

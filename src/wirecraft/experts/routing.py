@@ -110,11 +110,11 @@ class RoutingExpertConfig:
     clip_clearance: float = 0.03  # m (horizontal) between a grasp point and any clip centre
     plug_clearance: float = 0.02  # m of wire kept between the grasp point and the plug
     pre_open: float = 0.03  # m pad gap before closing
-    # m: approach and descend follow the grasp point as the wire settles, while it lies at most
-    # this high above the table: a wire caught on an open pad rose with the TCP, and following
-    # it carried it off the table (Panda, held-out seed 1025: the cable fell until it
-    # "diverged"); a wire springing out of a clip after a release moves up to 10 cm, and rises
-    # to 7 cm for a few steps
+    # m: approach and descend follow the grasp point as the wire settles while it lies at most
+    # this high above the table, and wait while it lies higher: a wire caught on an open pad
+    # rose with the TCP, and following it carried it off the table (Panda, held-out seed 1025:
+    # the cable fell until it "diverged"); a wire springing out of a clip after a release
+    # moves up to 10 cm and can fly up to 14 cm for a few steps
     follow_height: float = 0.10
     descend_speed: float = 0.006  # m per step
     carry_speed: float = 0.008  # m per step
@@ -717,16 +717,19 @@ class RoutingExpert(ScriptedExpert):
             if np.isnan(grasp_pos).any():
                 self._plan_grasp(i)
                 grasp_rot = fsm.get("grasp_rot")[i]
-            # the wire may still be settling after the last release: follow its grasp point,
-            # but not up (a wire caught on a pad rises with the TCP and would lead it away)
+            # the wire may still be settling after the last release: follow its grasp point;
+            # while it is high, wait where it was (flung up, it comes back down; caught on a
+            # pad, it rises with the TCP and following it would lead the TCP away)
             settled = self._grasp_point(i, self.grasp_arc[i])
-            if np.dot(settled - self._table_height(i, 0.0), up) <= cfg.follow_height:
+            high = np.dot(settled - self._table_height(i, 0.0), up) > cfg.follow_height
+            if not high:
                 fsm.snapshots["grasp_pos"][i] = settled
             grasp_pos = fsm.snapshots["grasp_pos"][i]
+            wait = False if high else None
         if name == "approach":
-            return grasp_pos + cfg.hover * up, grasp_rot, fast, open_cmd, None
+            return grasp_pos + cfg.hover * up, grasp_rot, fast, open_cmd, wait
         if name == "descend":
-            return grasp_pos, grasp_rot, cfg.descend_speed, open_cmd, None
+            return grasp_pos, grasp_rot, cfg.descend_speed, open_cmd, wait
 
         # ---- Close: hold still, close; done when both pads touch the wire and stopped --------
         if name == "close":
