@@ -309,20 +309,15 @@ def test_approach_follows_a_settling_wire_but_not_one_carried_away():
     up = expert._up(0)
     planned = expert.fsm.snapshots["grasp_pos"][0].copy()
     lying = u.wire_points().copy()
-    settled = lying + [0.0, 0.02, 0.0]
-    u.wire_points = lambda: settled
-    goal = expert._goals(0)[0]
-    followed = expert._grasp_point(0, expert.grasp_arc[0])
-    assert np.linalg.norm(followed - planned) == pytest.approx(0.02, abs=1e-6)
-    np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
-    sprung = lying + [0.08, 0.0, 0.0]
-    u.wire_points = lambda: sprung
-    goal = expert._goals(0)[0]
-    followed = expert._grasp_point(0, expert.grasp_arc[0])
-    assert np.linalg.norm(followed - planned) == pytest.approx(0.08, abs=1e-6)
-    np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
-    assert expert._goals(0)[4] is None  # the pose decides when the approach ends
-    carried = sprung + [0.0, 0.0, 0.15]
+    for shift in ([0.0, 0.02, 0.0], [0.08, 0.0, 0.0]):  # settled; sprung off along the table
+        moved = lying + shift
+        u.wire_points = lambda moved=moved: moved
+        goal, _, _, _, reached = expert._goals(0)
+        followed = expert._grasp_point(0, expert.grasp_arc[0])
+        assert np.linalg.norm(followed - planned) == pytest.approx(np.linalg.norm(shift), abs=1e-6)
+        np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
+        assert reached is None  # the pose decides when the approach ends
+    carried = moved + [0.0, 0.0, 0.15]
     u.wire_points = lambda: carried
     goal, _, _, _, reached = expert._goals(0)
     np.testing.assert_allclose(goal, followed + expert.config.hover * up, atol=1e-9)
