@@ -254,11 +254,13 @@ class RoutingExpert(ScriptedExpert):
         """Base-frame point offset: ``height`` above the table (z = 0 in the world)."""
         return self._to_base(i, np.array([0.0, 0.0, height]))
 
+    def _height(self, i, point) -> float:
+        """m ``point`` (base frame) lies above the table."""
+        return float(np.dot(point - self._table_height(i, 0.0), self._up(i)))
+
     def _at_height(self, i, point, height):
         """``point`` (base frame) moved vertically to ``height`` above the table."""
-        up = self._up(i)
-        table = self._table_height(i, 0.0)
-        return point + (height - np.dot(point - table, up)) * up
+        return point + (height - self._height(i, point)) * self._up(i)
 
     def _down_rots(self, i, axis):
         """The two TCP rotations pointing down with the pads closing across the horizontal
@@ -411,7 +413,7 @@ class RoutingExpert(ScriptedExpert):
         points = self._to_base(i, self.envs[i].wire_points())
         arc = self._arc(points)
         point = np.array([np.interp(arc_length, arc, points[:, d]) for d in range(3)])
-        lying = float(np.dot(point - self._table_height(i, 0.0), self._up(i)))
+        lying = self._height(i, point)
         return self._at_height(i, point, max(cfg.grasp_height, lying + cfg.wire_below_tcp))
 
     def _held_depth(self, i, tcp_pos):
@@ -428,8 +430,7 @@ class RoutingExpert(ScriptedExpert):
 
     def _rise(self, i, anchor):
         """m the held wire's centre stands above ``anchor`` at the carry height."""
-        height = np.dot(anchor - self._table_height(i, 0.0), self._up(i))
-        return self._carry_height(i) - self.held_below[i] - height
+        return self._carry_height(i) - self.held_below[i] - self._height(i, anchor)
 
     def _taut_length(self, i, slot, anchor):
         """m of wire from the anchor to the clip front at the carry height, pulled straight."""
@@ -669,8 +670,7 @@ class RoutingExpert(ScriptedExpert):
         wire_top = clip.base_height + (2 * radius if crossing is None else crossing[1] + radius)
         tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
         pad_end = -np.dot(self._pad_tip_offsets(i)[0], self._up(i))
-        height = np.dot(tcp_pos - self._table_height(i, 0.0), self._up(i)) - pad_end
-        return height - wire_top
+        return self._height(i, tcp_pos) - pad_end - wire_top
 
     def _press_clear_height(self, i):
         """TCP height at which the open pads pass over the clip and a wire lying on its lips."""
@@ -721,7 +721,7 @@ class RoutingExpert(ScriptedExpert):
             # while it is high, wait where it was (flung up, it comes back down; caught on a
             # pad, it rises with the TCP and following it would lead the TCP away)
             settled = self._grasp_point(i, self.grasp_arc[i])
-            high = np.dot(settled - self._table_height(i, 0.0), up) > cfg.follow_height
+            high = self._height(i, settled) > cfg.follow_height
             if not high:
                 fsm.snapshots["grasp_pos"][i] = settled
             grasp_pos = fsm.snapshots["grasp_pos"][i]
