@@ -489,6 +489,9 @@ def test_a_joint_the_pads_cannot_bring_out_far_enough_goes_into_the_clip(joint_p
         ("carry_height", 0.0),
         ("flex_carry_height", -0.03),
         ("follow_height", -0.01),
+        ("follow_height", float("nan")),
+        ("inside_joint", float("nan")),
+        ("joint_inside", "yes"),
     ],
 )
 def test_refuses_bad_settings(field, value):

@@ -169,6 +169,9 @@ class RoutingExpertConfig:
         for name in ("carry_height", "flex_carry_height"):
             validation.positive(owner, name, getattr(self, name))
         validation.at_least_int(owner, "seated_early_steps", self.seated_early_steps, 1)
+        # either side of the slot centre, within the clip (whose length the config does not know)
+        validation.finite(owner, "inside_joint", self.inside_joint)
+        validation.boolean(owner, "joint_inside", self.joint_inside)
 
 
 PHASES = (
