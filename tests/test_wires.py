@@ -149,3 +149,8 @@ def test_end_gap_is_known_before_the_wire_is_built(model, radius):
     flex_reach = float(m.flex_radius[0]) + END_CLEARANCE if m.nflex else 0.0
     assert end_gap(config) == pytest.approx(flex_reach, abs=1e-12)
     assert wire.end_gap == pytest.approx(flex_reach, abs=1e-12)
+
+
+def test_end_gap_takes_the_default_config_as_add_wire_does():
+    spec = scene.new_spec()
+    assert end_gap() == add_wire(spec).end_gap == end_gap(WireConfig())

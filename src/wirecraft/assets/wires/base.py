@@ -486,6 +486,8 @@ def add_wire(
     return WIRE_MODELS.get(config.model)(spec, config, name, pos, quat)
 
 
-def end_gap(config: WireConfig) -> float:
-    """The ``end_gap`` a wire built from ``config`` will have, without building it."""
+def end_gap(config: WireConfig | None = None) -> float:
+    """The ``end_gap`` a wire built from ``config`` (as ``add_wire`` takes it) will have, without
+    building it."""
+    config = config if config is not None else WireConfig()
     return WIRE_MODELS.get(config.model).gap_for(config.resolved())
