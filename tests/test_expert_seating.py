@@ -342,6 +342,8 @@ def test_press_passes_follow_their_directions():
         ("carry_speed", 0.0),
         ("press_speed", -0.005),
         ("release_open", 0.0),
+        ("press_lag_slowdown", 0.0),
+        ("press_lag_slowdown", 1.5),
         ("lay_slowdown", (1.6, 1.0)),
         ("lay_slowdown", (0.0, 1.0)),
         ("lay_slowdown", (1.0,)),
@@ -733,17 +735,17 @@ def test_a_plug_lying_far_round_is_grasped_with_a_turned_tcp():
 
 
 def test_a_third_pass_seats_a_wire_that_two_left_raised():
-    """WidowX AI, curved seed 1 (expert seeded 1, as ``wirecraft collect`` seeds it): after
-    two pressing passes the wire's far stretch still rides high (75 % inside) with ~140 of the
-    480 steps left; the third pass over that stretch seats it.  With two passes (the earlier
-    default) the expert stops there, unseated."""
+    """WidowX AI, curved seed 70 (expert seeded 70, as ``wirecraft collect`` seeds it): the
+    wire, seated at step ~230, springs partly out again; after two pressing passes it still
+    rides high with ~55 of the 480 steps left, and the third pass over that stretch seats it
+    again.  With two passes (the earlier default) the expert stops there, 67 % inside."""
 
     def episode(directions):
         env = wirecraft.make(
             "seating", channel="curved", robot="wxai", control=SeatingExpert.CONTROL
         )
-        expert = SeatingExpert(env, SeatingExpertConfig(seed=1, press_directions=directions))
-        env.reset(seed=1)
+        expert = SeatingExpert(env, SeatingExpertConfig(seed=70, press_directions=directions))
+        env.reset(seed=70)
         expert.reset()
         passes, last = 0, None
         while True:

@@ -63,9 +63,10 @@ pad's box in the model (``_press_profile``).  Held at the start orientation (the
 ``cartesian_fixed`` design) the pad fits only where the channel runs within ~16 deg of base x
 (22 sin(a) + 6 cos(a) <= 12 mm): curved tuning seeds 0-49, 40/50 with two such passes; turned,
 it fits along ~85% of the channel and one pass usually suffices (46/50; held-out seeds
-1000-1099: 82%, against 75% fixed).  The pad's goal moves on at its own pace even while
-the pad lags behind it (a goal that waited for a lagging pad cost the slow arms the time of
-a third pass; docs/experts.md, "Three pressing passes").  Between the
+1000-1099: 82%, against 75% fixed).  While the pad lags more than ``press_lag`` behind its
+goal the goal slows down (``press_lag_slowdown``): chasing a goal far ahead, the pad would
+cut the bends into the walls (with no slow-down at all a WidowX AI pad caught on a wall corner
+2-4 cm behind its goal, broke free and the wire diverged).  Between the
 release and the pass the pads travel ``press_hover`` above the wall tops, and the release opens
 them wide, so that neither the plug nor the wire near it rides along.  Passes from the end back
 towards the entry were tried (fixed orientation) and are worse: pressing from the end pins the
@@ -200,6 +201,11 @@ class SeatingExpertConfig:
     press_travel: float = 0.04  # m: pad bottoms above the wall tops while travelling
     press_open: float = 0.04  # m: pad gap while pressing (the other pad passes beside)
     press_speed: float = 0.005  # m per step along the path (slower where the pad turns)
+    # m: the pad's goal slows down while the pad is farther behind it.  Not 8 mm: the slow
+    # arms' pads lag 1-2 cm wherever they drag the wire, and the slowed goal then used up the
+    # time a third pass needs (docs/experts.md, "Three pressing passes").
+    press_lag: float = 0.02
+    press_lag_slowdown: float = 0.25  # speed factor then
     # The pad's yaw follows the channel's heading averaged over this much arc either side, so
     # it turns gradually through the bends (it fits within ~16 deg of the local heading).
     press_turn_window: float = 0.02  # m of arc
@@ -211,8 +217,8 @@ class SeatingExpertConfig:
     # Direction of each pressing pass (+1: from the entry towards the end, -1: back from the
     # end); a pass starts only while a wire point still rides high.  Three: a wire that
     # sprang out again behind the pad gets a third pass where the episode leaves time for it
-    # (curved, validation, at the end: UR5 95 -> 99 %, Panda 93 -> 95 %, WidowX 86 -> 92 %,
-    # with the goal no longer slowed for a lagging pad; docs/experts.md).
+    # (with ``press_lag`` 2 cm; curved, validation, at the end / at some step: UR5 95 / 97 ->
+    # 99 / 99 %, Panda 93 / 96 -> 95 / 98 %, WidowX AI 86 / 91 -> 93 / 93 %; docs/experts.md).
     press_directions: tuple[int, ...] = (1, 1, 1)
     # A pass after the first covers only the stretch where the wire still rides high, from
     # press_lead_in of arc before its first raised point to press_lead_out past its last (a
@@ -253,6 +259,8 @@ class SeatingExpertConfig:
             "press_open",
         ):
             validation.positive(owner, name, getattr(self, name))
+        validation.positive(owner, "press_lag_slowdown", self.press_lag_slowdown)
+        validation.in_range(owner, "press_lag_slowdown", self.press_lag_slowdown, 0.0, 1.0)
         slowdown = self.lay_slowdown
         pair = isinstance(slowdown, (tuple, list)) and len(slowdown) == 2
         if not pair or not (
@@ -280,6 +288,7 @@ class SeatingExpertConfig:
             "press_hover",
             "press_travel_reach",
             "press_travel",
+            "press_lag",
             "press_turn_window",
             "press_yaw_slack",
             "final_retreat",
@@ -554,7 +563,11 @@ class SeatingExpert(ScriptedExpert):
                 target = self._press_target(i, start)
                 tcp, rot = self._pad_to_tcp(i, target, self._press_yaw(i, start))
                 return tcp, rot, cfg.descend_speed, opened, None
-            done = self._advance_press(i, start, stop)
+            # The pad's goal slows down while the pad lags behind it: a lagging pad that
+            # chased a goal further ahead would cut the bends into the walls.
+            lag = self._pad_target_world(i) - self._press_target(i, self.press_arc[i])
+            slow = np.linalg.norm(lag[:2]) > cfg.press_lag
+            done = self._advance_press(i, start, stop, cfg.press_lag_slowdown if slow else 1.0)
             target = self._press_target(i, self.press_arc[i])
             tcp, rot = self._pad_to_tcp(i, target, self._press_yaw(i, self.press_arc[i]))
             return tcp, rot, 3 * cfg.press_speed, opened, done
@@ -711,7 +724,7 @@ class SeatingExpert(ScriptedExpert):
         _, arc = self._path(i)
         return float(np.interp(s, arc, self._press_profile(i)[1]))
 
-    def _advance_press(self, i, start: float, stop: float) -> bool:
+    def _advance_press(self, i, start: float, stop: float, factor: float = 1.0) -> bool:
         """Move the pad one step along the path towards ``stop``: ``press_speed``, slower where
         its yaw profile turns by more than ``press_turn_rate`` in that step (the turn keeps up
         with the slide).  Returns whether the pass has arrived."""
@@ -725,7 +738,7 @@ class SeatingExpert(ScriptedExpert):
         near = (middle >= lo - 0.002) & (middle <= hi + 0.002)
         slope = np.abs(np.diff(yaws)) / np.maximum(np.diff(arc), 1e-9)
         steepest = float(slope[near].max()) if near.any() else 0.0
-        step = cfg.press_speed
+        step = cfg.press_speed * factor
         if steepest * step > cfg.press_turn_rate:
             step = cfg.press_turn_rate / steepest
         self.press_arc[i] = here + ahead * step
