@@ -342,6 +342,7 @@ def test_press_passes_follow_their_directions():
         ("carry_speed", 0.0),
         ("press_speed", -0.005),
         ("release_open", 0.0),
+        ("press_lag_flex", -0.008),
         ("press_lag_slowdown", 0.0),
         ("press_lag_slowdown", 1.5),
         ("lay_slowdown", (1.6, 1.0)),
@@ -760,3 +761,24 @@ def test_a_third_pass_seats_a_wire_that_two_left_raised():
     assert passes == 3 and info["success"] and not info["diverged"]
     info, passes = episode((1, 1))
     assert passes == 2 and not info["success"]
+
+
+def test_the_pad_does_not_run_ahead_of_a_rod():
+    """Rod, curved seed 2059 (expert seeded 2059): with the articulated wire's 2 cm lag the
+    pad fell 7-24 mm behind its goal, dragged the rod out of the channel and the simulation
+    diverged; with ``press_lag_flex`` (8 mm) the first pass seats it."""
+
+    def episode(config):
+        env = wirecraft.make("seating", channel="curved", wire="rod", control=SeatingExpert.CONTROL)
+        expert = SeatingExpert(env, config)
+        env.reset(seed=2059)
+        expert.reset()
+        while True:
+            _, _, terminated, truncated, info = env.step(expert.act()[0])
+            if terminated or truncated:
+                return info
+
+    info = episode(SeatingExpertConfig(seed=2059))
+    assert info["success"] and not info["diverged"]
+    info = episode(SeatingExpertConfig(seed=2059, press_lag_flex=0.02))
+    assert info["diverged"] and not info["success"]
