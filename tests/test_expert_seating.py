@@ -22,10 +22,11 @@ from wirecraft.sensors import deepest_penetration
 EPISODE_STEPS = 480
 
 
-def run(channel: str, seed: int, config: SeatingExpertConfig | None = None):
-    """One episode of the expert; also the largest turn (deg) of the TCP about the vertical
-    from its start orientation while the pressing pad is down (measured on the TCP site)."""
-    env = wirecraft.make("seating", channel=channel, control=SeatingExpert.CONTROL)
+def run(channel: str, seed: int, config: SeatingExpertConfig | None = None, **make_kwargs):
+    """One episode of the expert (UR5 and articulated wire unless ``make_kwargs`` say
+    otherwise); also the largest turn (deg) of the TCP about the vertical from its start
+    orientation while the pressing pad is down (measured on the TCP site)."""
+    env = wirecraft.make("seating", channel=channel, control=SeatingExpert.CONTROL, **make_kwargs)
     expert = SeatingExpert(env, config)
     obs, info = env.reset(seed=seed)
     expert.reset()
@@ -742,20 +743,10 @@ def test_a_third_pass_seats_a_wire_that_two_left_raised():
     again.  With two passes (the earlier default) the expert stops there, 67 % inside."""
 
     def episode(directions):
-        env = wirecraft.make(
-            "seating", channel="curved", robot="wxai", control=SeatingExpert.CONTROL
-        )
-        expert = SeatingExpert(env, SeatingExpertConfig(seed=70, press_directions=directions))
-        env.reset(seed=70)
-        expert.reset()
-        passes, last = 0, None
-        while True:
-            _, _, terminated, truncated, info = env.step(expert.act()[0])
-            phase = expert.phase_names[0]
-            passes += phase == "press" and last != "press"
-            last = phase
-            if terminated or truncated:
-                return info, passes
+        config = SeatingExpertConfig(seed=70, press_directions=directions)
+        info, _, _, expert, _ = run("curved", 70, config, robot="wxai")
+        # passes finished, and the one the episode's end cut off
+        return info, expert.press_count[0] + (expert.phase_names[0] == "press")
 
     info, passes = episode((1, 1, 1))
     assert passes == 3 and info["success"] and not info["diverged"]
@@ -767,18 +758,7 @@ def test_the_pad_does_not_run_ahead_of_a_rod():
     """Rod, curved seed 2059 (expert seeded 2059): with the articulated wire's 2 cm lag the
     pad fell 7-24 mm behind its goal, dragged the rod out of the channel and the simulation
     diverged; with ``press_lag_flex`` (8 mm) the first pass seats it."""
-
-    def episode(config):
-        env = wirecraft.make("seating", channel="curved", wire="rod", control=SeatingExpert.CONTROL)
-        expert = SeatingExpert(env, config)
-        env.reset(seed=2059)
-        expert.reset()
-        while True:
-            _, _, terminated, truncated, info = env.step(expert.act()[0])
-            if terminated or truncated:
-                return info
-
-    info = episode(SeatingExpertConfig(seed=2059))
+    info = run("curved", 2059, SeatingExpertConfig(seed=2059), wire="rod")[0]
     assert info["success"] and not info["diverged"]
-    info = episode(SeatingExpertConfig(seed=2059, press_lag_flex=0.02))
+    info = run("curved", 2059, SeatingExpertConfig(seed=2059, press_lag_flex=0.02), wire="rod")[0]
     assert info["diverged"] and not info["success"]
