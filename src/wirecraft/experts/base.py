@@ -194,6 +194,10 @@ class ScriptedExpert:
         origin, base = self._base(i)
         return (np.asarray(points, float) - origin) @ base
 
+    def _height(self, i, point) -> float:
+        """Height (m) of a base-frame point above the table (z = 0 in the world)."""
+        return float(np.dot(point - self._to_base(i, np.zeros(3)), self._up(i)))
+
     def _ctl_target(self, i):
         """The controller's own target pose (it may lead the TCP), in the base frame."""
         ctl = self.envs[i].controller

@@ -257,10 +257,6 @@ class RoutingExpert(ScriptedExpert):
         """Base-frame point offset: ``height`` above the table (z = 0 in the world)."""
         return self._to_base(i, np.array([0.0, 0.0, height]))
 
-    def _height(self, i, point) -> float:
-        """m ``point`` (base frame) lies above the table."""
-        return float(np.dot(point - self._table_height(i, 0.0), self._up(i)))
-
     def _at_height(self, i, point, height):
         """``point`` (base frame) moved vertically to ``height`` above the table."""
         return point + (height - self._height(i, point)) * self._up(i)

@@ -422,11 +422,6 @@ class SeatingExpert(ScriptedExpert):
         task = env.task
         return all(task.pad_contacts(env.model, env.data, task.held_contacts))
 
-    def _height(self, i, point) -> float:
-        """Height (m) of a base-frame point above the table."""
-        up = self._up(i)
-        return float(np.dot(point - self._to_base(i, np.zeros(3)), up))
-
     # -- the channel's path --------------------------------------------------------------------
     def _path(self, i):
         """(M, 3) world points along the channel centre at floor height, extended by the
