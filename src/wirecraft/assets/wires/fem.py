@@ -15,7 +15,11 @@ give; at wire-scale loads that is still < 1% strain.
 
 Damping: MuJoCo 4.0 refuses joint damping on flex vertex/node bodies, so the reference's
 "vertex damping 3.0" has no direct counterpart; ``damping`` is the elasticity's
-stiffness-proportional damping (s).  Ends attach with four ``connect`` equalities
+stiffness-proportional damping (s).  It damps a mode in proportion to its frequency (damping
+ratio ~ omega * damping / 2), so the default is set by the slow bending swings: at 0.0005 s the
+first one (1.3 Hz) kept 90% of its amplitude per swing (damping ratio 0.017) and the wire
+pressed into a curved channel swung out of it again; 0.02 s gives 0.10 (docs/physics.md,
+"FEM choices").  Ends attach with four ``connect`` equalities
 on the end face's nodes, which clamps position, tangent and roll.
 """
 
@@ -54,7 +58,7 @@ class FemWire(WireHandle):
         "density": 800.0,
         "young": 5e7,
         "poisson": 0.49,
-        "damping": 0.0005,
+        "damping": 0.02,
         "friction": 1.0,
         "rgba": (0.2, 0.65, 0.3, 1.0),
     }
