@@ -17,7 +17,7 @@ Damping: MuJoCo 4.0 refuses joint damping on flex vertex/node bodies, so the ref
 "vertex damping 3.0" has no direct counterpart; ``damping`` is the elasticity's
 stiffness-proportional damping (s).  It damps a mode in proportion to its frequency (damping
 ratio ~ omega * damping / 2), so the default is set by the slow bending swings: at 0.0005 s the
-first one (1.3 Hz) kept 90% of its amplitude per swing (damping ratio 0.017) and the wire
+first one (1.3 Hz) kept 92% of its amplitude per swing (damping ratio 0.014) and the wire
 pressed into a curved channel swung out of it again; 0.02 s gives 0.10 (docs/physics.md,
 "FEM choices").  Ends attach with four ``connect`` equalities
 on the end face's nodes, which clamps position, tangent and roll.
