@@ -44,21 +44,33 @@ def clamped_wire(config: WireConfig, gravity_scale: float) -> tuple:
     return model, mujoco.MjData(model), wire
 
 
+def cantilever_tip(config: WireConfig, gravity_scale: float) -> float:
+    """Euler-Bernoulli tip deflection of a clamped wire (a resolved config) under
+    ``gravity_scale`` x g: q L^4 / (8 E I)."""
+    q = config.linear_density * G * gravity_scale
+    return q * config.length**4 / (8.0 * config.bending_stiffness)
+
+
+def tip_drops(model, data, wire: WireHandle, seconds: float) -> np.ndarray:
+    """Run for ``seconds``; the tip's drop below the clamp after every step."""
+    drops = []
+    for _ in range(int(seconds / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+        drops.append(CLAMP_Z - wire.points(model, data)[-1, 2])
+    assert np.all(np.isfinite(data.qpos))
+    drops = np.array(drops)
+    assert np.all(np.isfinite(drops))
+    return drops
+
+
 def mean_tip_drop(model, data, wire: WireHandle, seconds: float, average_last: float) -> float:
     """Run, then average the tip's drop below the clamp over the last ``average_last`` s.
 
     Averaging over whole swings makes the result the static deflection even for lightly damped
     models.
     """
-    steps = int(seconds / model.opt.timestep)
-    start = steps - int(average_last / model.opt.timestep)
-    drops = []
-    for i in range(steps):
-        mujoco.mj_step(model, data)
-        if i >= start:
-            drops.append(CLAMP_Z - wire.points(model, data)[-1, 2])
-    assert np.all(np.isfinite(data.qpos))
-    return float(np.mean(drops))
+    drops = tip_drops(model, data, wire, seconds)
+    return float(np.mean(drops[len(drops) - int(average_last / model.opt.timestep) :]))
 
 
 @pytest.mark.parametrize("name", MODELS)
@@ -66,9 +78,7 @@ def test_cantilever_matches_euler_bernoulli(name):
     """Tip deflection under 1% gravity: delta = q L^4 / (8 E I), E and I from the config."""
     scale = 0.01
     model, data, wire = clamped_wire(WireConfig(model=name), scale)
-    c = wire.config
-    q = c.linear_density * G * scale
-    theory = q * c.length**4 / (8.0 * c.bending_stiffness)
+    theory = cantilever_tip(wire.config, scale)
     tip = mean_tip_drop(model, data, wire, seconds=8.0, average_last=4.0)
     assert tip == pytest.approx(theory, rel=BENDING_TOL[name]), (tip, theory)
 
@@ -77,8 +87,8 @@ def test_cantilever_catches_a_wrong_stiffness():
     """The bending check can fail: a rod whose E is 2x off misses theory computed with E."""
     model, data, wire = clamped_wire(WireConfig(model="rod", young=1e8), 0.01)
     tip = mean_tip_drop(model, data, wire, seconds=8.0, average_last=4.0)
-    c = WireConfig(model="rod").resolved()  # theory with the default E = 5e7
-    theory = c.linear_density * G * 0.01 * c.length**4 / (8.0 * c.bending_stiffness)
+    # theory with the default E = 5e7
+    theory = cantilever_tip(WireConfig(model="rod").resolved(), 0.01)
     assert tip != pytest.approx(theory, rel=BENDING_TOL["rod"])
 
 
@@ -99,14 +109,7 @@ def swing_decay(config: WireConfig) -> tuple[float, float]:
     """A wire clamped straight under 1% gravity and let go: (period (s), mean ratio of the first
     three successive swing amplitudes about the Euler-Bernoulli rest deflection)."""
     model, data, wire = clamped_wire(config, 0.01)
-    c = wire.config
-    rest = c.linear_density * G * 0.01 * c.length**4 / (8.0 * c.bending_stiffness)
-    tip = []
-    for _ in range(int(3.0 / model.opt.timestep)):
-        mujoco.mj_step(model, data)
-        tip.append(CLAMP_Z - wire.points(model, data)[-1, 2] - rest)
-    x = np.array(tip)
-    assert np.all(np.isfinite(x))
+    x = tip_drops(model, data, wire, 3.0) - cantilever_tip(wire.config, 0.01)
     peaks = np.flatnonzero((x[1:-1] > x[:-2]) & (x[1:-1] >= x[2:]) & (x[1:-1] > 0)) + 1
     assert len(peaks) >= 4, peaks
     period = float(np.mean(np.diff(peaks[:4]))) * model.opt.timestep
