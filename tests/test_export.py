@@ -38,9 +38,21 @@ def test_plug_and_port_do_not_overlap_when_seated():
     port = to_mesh(connector.port_shapes(), scale=1000)
     shell = to_mesh(connector.plug_shell_shapes(), scale=1000)
     shell.apply_translation([(connector.cavity_depth - connector.plug_length) * 1000, 0, 0])
-    overlap = trimesh.boolean.intersection([port, shell], engine="manifold")
-    assert overlap.volume == pytest.approx(0.0, abs=1e-3)  # mm^3: faces touch at the stop
+
+    def overlap_volume(shift_mm) -> float:
+        moved = shell.copy()
+        moved.apply_translation(shift_mm)
+        overlap = trimesh.boolean.intersection([port, moved], engine="manifold")
+        # Seated, the overlap is a zero-volume sliver (the faces touching at the stop), whose
+        # centre of mass trimesh computes as 0 / 0 along with the volume.
+        with np.errstate(invalid="ignore"):
+            return float(overlap.volume)
+
+    assert overlap_volume([0.0, 0.0, 0.0]) == pytest.approx(0.0, abs=1e-3)  # mm^3
     assert np.isclose(shell.bounds[1, 0], connector.cavity_depth * 1000)
+    # The check sees a misfit: 0.5 mm past the stop, or sideways by more than the clearance.
+    assert overlap_volume([0.5, 0.0, 0.0]) > 10.0
+    assert overlap_volume([0.0, 0.8, 0.0]) > 10.0
 
 
 def test_unknown_part_lists_valid_names(tmp_path):
