@@ -888,11 +888,11 @@ class SeatingExpert(ScriptedExpert):
 
     def _needs_tuck(self, i) -> bool:
         """Whether an inner wire point over the board beside the channel lies more than
-        ``tuck_outside`` outside its inner walls, high enough that a pad just above the wall
-        tops pushes it (its centre above the pad's bottom), while the plug lies below the
-        pads' bottoms: keeps the channel arc where the farthest such point lies
-        (``tuck_arc``), the pad that pushes (``tuck_pad``) and its start beside the wire
-        (``tuck_from``)."""
+        ``tuck_outside`` (``tuck_outside_fem`` for the FEM wire) outside its inner walls, high
+        enough that a pad just above the wall tops pushes it (its centre above the pad's
+        bottom), while the plug lies below the pads' bottoms: keeps the channel arc where the
+        farthest such point lies (``tuck_arc``), the pad that pushes (``tuck_pad``) and its
+        start beside the wire (``tuck_from``)."""
         cfg, env = self.config, self.envs[i]
         task = env.task
         if task.assembly.wire.config.model not in cfg.tuck_wires:
