@@ -24,7 +24,7 @@ from tqdm import tqdm
 import wirecraft
 from wirecraft.experts.routing import RoutingExpert, RoutingExpertConfig
 from wirecraft.rl.config import parse_override
-from wirecraft.tasks.assembly import resample
+from wirecraft.tasks.assembly import arc_lengths, resample
 
 OFFSET_BINS_MM = (-17, -12, -9, -5, -1, 3, 6, 9, 12, 17)
 STEEP_DEG = 15.0
@@ -36,9 +36,9 @@ def push_record(env, expert) -> dict:
     k = int(expert.clip[0])
     clip = env.task.placed_clips(env.data)[k]
     points = env.wire_points()
-    node_arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    node_arc = arc_lengths(points)
     line = resample(points, 0.001)
-    line_arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))])
+    line_arc = arc_lengths(line)
     radius = env.task.assembly.wire.config.radius
     centre = np.array(clip.pos) + [0.0, 0.0, clip.config.base_height + radius]
     slot_arc = line_arc[np.argmin(np.linalg.norm(line - centre, axis=1))]

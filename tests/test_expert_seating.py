@@ -19,6 +19,7 @@ import wirecraft
 from wirecraft.assets.wires import WireConfig
 from wirecraft.experts.seating import SeatingExpert, SeatingExpertConfig
 from wirecraft.sensors import deepest_penetration
+from wirecraft.tasks.assembly import arc_lengths
 
 EPISODE_STEPS = 480
 
@@ -383,7 +384,7 @@ def test_later_pass_covers_only_the_raised_stretch(monkeypatch):
     cfg = expert.config
     radius = u.task.assembly.wire.config.radius
     resting = channel_path(u.task, radius)[1:]  # the centre line, a resting wire's centre
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(resting, axis=0), axis=1))])
+    arc = arc_lengths(resting)
     monkeypatch.setattr(u, "wire_points", lambda: resting.copy())
     assert not expert._needs_pressing(0)
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import wirecraft
+from wirecraft.tasks.assembly import arc_lengths
 
 LANE_X = 0.10
 RISE = math.radians(25.0)  # slope at which a hand-placed cable leaves the channel
@@ -80,7 +81,7 @@ def seating_polyline(task, inside_length, rise=RISE):
             line[:, 2] + placed.pos[2] + task.assembly.wire.config.radius + 0.0005,
         ]
     )
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(world, axis=0), axis=1))])
+    arc = arc_lengths(world)
     inside = world[arc <= inside_length]
     tangent = inside[-1] - inside[-2]
     tangent[2] = 0.0

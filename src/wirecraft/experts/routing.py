@@ -76,7 +76,7 @@ import numpy as np
 from wirecraft import validation
 from wirecraft.experts.base import ScriptedExpert, flat, horizontal, rotation_angle
 from wirecraft.experts.fsm import Phase
-from wirecraft.tasks.assembly import resample
+from wirecraft.tasks.assembly import arc_lengths, resample
 from wirecraft.tasks.routing import MAX_CLIPS
 
 
@@ -303,9 +303,6 @@ class RoutingExpert(ScriptedExpert):
         _, base = self._base(i)
         return self._to_base(i, slot), base.T @ world_axis, clip.config
 
-    def _arc(self, points):
-        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-
     def _anchor(self, i):
         """(anchor point (base frame), its arc length along the wire): the clamp for the first
         clip, the previous clip's slot afterwards."""
@@ -315,7 +312,7 @@ class RoutingExpert(ScriptedExpert):
             clamp = env.data.xpos[env.model.body(env.task.assembly.clamp).id]
             return self._to_base(i, clamp), 0.0
         slot, _, _ = self._clip_geometry(i, self.clip[i] - 1)
-        arc = self._arc(points)
+        arc = arc_lengths(points)
         return slot, float(arc[np.argmin(np.linalg.norm(points - slot, axis=1))])
 
     def seated(self, i, margin: float | None = None) -> np.ndarray:
@@ -354,7 +351,7 @@ class RoutingExpert(ScriptedExpert):
         up = self._up(i)
         nodes = self._to_base(i, env.wire_points())
         points = resample(nodes, cfg.grasp_spacing)
-        arc = self._arc(points)
+        arc = arc_lengths(points)
         slot, _, _ = self._clip_geometry(i)
         anchor, anchor_arc = self._anchor(i)
         need = anchor_arc + self._taut_length(i, slot, anchor) + cfg.grasp_slack
@@ -368,7 +365,7 @@ class RoutingExpert(ScriptedExpert):
             if ok.any():
                 break
         candidates = np.flatnonzero(ok)
-        nodes_arc = self._arc(nodes)
+        nodes_arc = arc_lengths(nodes)
         node_dist = np.min(np.abs(arc[:, None] - nodes_arc[None, :]), axis=1)
         at_joint = clear & far & (node_dist < cfg.retry_joint_reach)
         at_joint &= arc <= need + cfg.retry_joint_spare
@@ -410,7 +407,7 @@ class RoutingExpert(ScriptedExpert):
         down to the slot."""
         cfg = self.config
         points = self._to_base(i, self.envs[i].wire_points())
-        arc = self._arc(points)
+        arc = arc_lengths(points)
         point = np.array([np.interp(arc_length, arc, points[:, d]) for d in range(3)])
         lying = self._height(i, point)
         return self._at_height(i, point, max(cfg.grasp_height, lying + cfg.wire_below_tcp))
@@ -494,7 +491,7 @@ class RoutingExpert(ScriptedExpert):
             return False
         up = self._up(i)
         line = resample(self._to_base(i, env.wire_points()), cfg.grasp_spacing)
-        arc = self._arc(line)
+        arc = arc_lengths(line)
         trail = line[(arc > self.grasp_arc[i]) & (arc <= self.grasp_arc[i] + cfg.trail_check)]
         if not len(trail):
             return False

@@ -126,6 +126,7 @@ from wirecraft.assets.wires import WIRE_MODELS
 from wirecraft.experts.base import TABLE_Z, UP, ScriptedExpert, flat, horizontal
 from wirecraft.experts.fsm import Phase
 from wirecraft.sensors import contact_push
+from wirecraft.tasks.assembly import arc_lengths
 
 
 @dataclass(frozen=True)
@@ -447,8 +448,7 @@ class SeatingExpert(ScriptedExpert):
         )
         tangent = world[-1] - world[-2]
         world = np.vstack([world, world[-1] + task.plug_lead * tangent / np.linalg.norm(tangent)])
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(world, axis=0), axis=1))])
-        return world, arc
+        return world, arc_lengths(world)
 
     def _path_point(self, i, s: float, height: float) -> np.ndarray:
         """Base-frame point ``height`` above the channel floor at arc ``s`` of its path."""

@@ -246,10 +246,16 @@ class WireAssembly:
         return float("inf") if peak < 1e-9 else 1.0 / peak
 
 
+def arc_lengths(polyline: np.ndarray) -> np.ndarray:
+    """(N,) metres along a polyline from its first point to each of its points."""
+    steps = np.linalg.norm(np.diff(np.asarray(polyline, float), axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
 def resample(polyline: np.ndarray, spacing: float) -> np.ndarray:
     """Points every ``spacing`` metres along a polyline (both ends kept)."""
     polyline = np.asarray(polyline, float)
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(polyline, axis=0), axis=1))])
+    arc = arc_lengths(polyline)
     s = np.linspace(0.0, arc[-1], max(2, int(np.ceil(arc[-1] / spacing)) + 1))
     return np.column_stack([np.interp(s, arc, polyline[:, k]) for k in range(3)])
 
