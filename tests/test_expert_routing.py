@@ -492,6 +492,8 @@ def test_a_joint_the_pads_cannot_bring_out_far_enough_goes_into_the_clip(joint_p
         ("follow_height", float("nan")),
         ("inside_joint", float("nan")),
         ("joint_inside", "yes"),
+        ("retry_joint", float("nan")),
+        ("push_force", float("inf")),
     ],
 )
 def test_refuses_bad_settings(field, value):

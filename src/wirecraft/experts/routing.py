@@ -69,6 +69,7 @@ base frame.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -164,13 +165,17 @@ class RoutingExpertConfig:
 
     def __post_init__(self) -> None:
         owner = "RoutingExpertConfig"
+        # every length, speed, force and gain (the float fields) must be a finite number: a NaN
+        # would only surface later as a NaN action; inside_joint may lie either side of the
+        # slot centre, within the clip (whose length the config does not know)
+        for field in dataclasses.fields(self):
+            if isinstance(field.default, float):
+                validation.finite(owner, field.name, getattr(self, field.name))
         for name in ("retry_joint_spare", "trail_check", "follow_height"):
             validation.non_negative(owner, name, getattr(self, name))
         for name in ("carry_height", "flex_carry_height"):
             validation.positive(owner, name, getattr(self, name))
         validation.at_least_int(owner, "seated_early_steps", self.seated_early_steps, 1)
-        # either side of the slot centre, within the clip (whose length the config does not know)
-        validation.finite(owner, "inside_joint", self.inside_joint)
         validation.boolean(owner, "joint_inside", self.joint_inside)
 
 
