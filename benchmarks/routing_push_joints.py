@@ -28,6 +28,7 @@ from wirecraft.tasks.assembly import arc_lengths, resample
 
 OFFSET_BINS_MM = (-17, -12, -9, -5, -1, 3, 6, 9, 12, 17)
 STEEP_DEG = 15.0
+PRESS_PHASES = ("retreat", "press_over", "press", "press_up")
 HELD_REACH = 0.008  # m along the slot axis between the TCP and a joint held between the pads
 
 
@@ -68,8 +69,8 @@ def run(args, config) -> list[dict]:
             phase = expert.phase_names[0]
             if before == "push" and phase != "push" and expert.clip[0] > 0:
                 pending = {"seed": seed, **push_record(env.unwrapped, expert)}
-            # the routing of that clip is over once its retreat (or press) hands on
-            if pending and before in ("retreat", "press_up") and phase != before:
+            # the routing of that clip is over once its retreat, or its press, hands on
+            if pending and before in ("retreat", "press_up") and phase not in PRESS_PHASES:
                 pending["seated"] = bool(expert.seated(0)[pending["clip"]])
                 records.append(pending)
                 pending = None
@@ -112,6 +113,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.episodes < 1:
         parser.error("--episodes must be at least 1")
+    if args.first_seed < 0:
+        parser.error("--first-seed must be >= 0 (reset seeds are non-negative)")
     overrides = dict(parse_override(item, RoutingExpertConfig()) for item in args.set)
     records = run(args, RoutingExpertConfig(**overrides))
     summarize(records)
