@@ -425,7 +425,7 @@ def test_ppo_trains_saves_loads_and_resumes(tmp_path):
 def test_source_commit_names_the_checkout_and_marks_uncommitted_changes(tmp_path):
     import subprocess
 
-    from wirecraft.rl.train import _source_commit
+    from wirecraft.provenance import source_commit as _source_commit
 
     assert _source_commit(tmp_path) is None  # not a git checkout
 

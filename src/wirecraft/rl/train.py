@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from wirecraft.provenance import provenance, source_commit
 from wirecraft.rl import ALGORITHMS  # noqa: E402
 from wirecraft.rl.common import (
     RUN_FILE,
@@ -83,34 +84,14 @@ def _versions(algorithm: str) -> dict[str, str]:
     names = ["torch", "skrl"] if algorithm == "sacfd" else ["torch", "rsl-rl-lib"]
     versions = {name: version(name) for name in names}
     versions["wirecraft"] = wirecraft.__version__
-    commit = _source_commit(Path(wirecraft.__file__).parent)
+    commit = source_commit(Path(wirecraft.__file__).parent)
     if commit:
         versions["wirecraft_commit"] = commit
     return versions
 
 
-def _source_commit(package_dir: Path) -> str | None:
-    """The git commit of a source checkout of WireCraft (``+dirty`` with uncommitted changes
-    to tracked files); None for an installed wheel (also one inside someone's repository,
-    where the package's files are not tracked) or without git."""
-    import subprocess
-
-    def git(*args: str) -> str:
-        return subprocess.run(
-            ["git", "-C", str(package_dir), *args],
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=True,
-        ).stdout.strip()
-
-    try:
-        git("ls-files", "--error-unmatch", "__init__.py")
-        commit = git("rev-parse", "HEAD")
-        dirty = git("status", "--porcelain", "--untracked-files=no")
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return commit + ("+dirty" if dirty else "")
+def _now() -> str:
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
 
 
 class Run:
@@ -182,7 +163,7 @@ def _new_run(algorithm: str, task: str, env_kwargs: dict, cfg, run_dir: Path) ->
         "latest_checkpoint": None,
         "env_steps": 0,
         "wall_time_s": 0.0,
-        "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "created": _now(),
         "versions": _versions(algorithm),
         "state_revision": STATE_REVISION,
     }
@@ -235,6 +216,11 @@ def train(
         cfg = replace(config_class(algorithm)(), **overrides)
         _check_expert_control(algorithm, _task_family(task), env_kwargs or {}, cfg)
         run = _new_run(algorithm, _task_family(task), dict(env_kwargs or {}), cfg, run_dir)
+    # One record per training session: a resumed run may continue on another machine.
+    run.data.setdefault("provenance", []).append(
+        provenance(threads=cfg.threads or os.cpu_count(), started=_now())
+    )
+    run.save()
     with _terminate_as_interrupt():
         if algorithm == "sacfd":
             _train_sacfd(cfg, run, steps, progress)
