@@ -16,6 +16,7 @@ import subprocess
 import sys
 import time
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -34,6 +35,7 @@ from wirecraft.datasets.recorder import Episode
 from wirecraft.datasets.writer import DEFAULT_REPO_ID, EpisodeWriter, read_commit
 from wirecraft.envs.vector import env_seed
 from wirecraft.experts import InsertionExpert
+from wirecraft.golden import golden_file_sha256
 
 SEED = 7
 SIZE = 64  # small images keep the tests fast; the pipeline is the same at 224
@@ -597,6 +599,14 @@ def test_resume_after_a_hard_kill_completes_with_the_same_content(tmp_path):
     assert dataset.num_episodes == 4
     records = read_commit(out)["progress"]["episodes"]
     assert [r["index"] for r in records] == [0, 1, 2, 3]
+    from wirecraft.datasets.collect import SETTINGS_FILE
+
+    sessions = json.loads((out / SETTINGS_FILE).read_text())["provenance"]
+    assert len(sessions) == 2  # the killed run and the resumed one
+    for session in sessions:
+        assert session["packages"]["mujoco"] == mujoco.__version__
+        assert session["golden_sha256"] == golden_file_sha256()
+        assert session["threads"] == 1 and session["cpu"]
     for e in (1, 3):  # one committed before the kill, one written after the resume
         fresh = run_episode(QUICK, records[e]["attempt"])
         assert np.array_equal(column(dataset, "observation.state", e), fresh.state)

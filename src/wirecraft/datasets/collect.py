@@ -472,6 +472,24 @@ def _open_writer(
     return writer
 
 
+def _record_provenance(out: Path, workers: int, ray_address: str | None) -> None:
+    """Append this run's provenance to the settings file: a resumed dataset may be continued on
+    another machine, and every run that added episodes is named."""
+    from wirecraft.datasets.writer import write_json_atomic
+    from wirecraft.provenance import provenance
+
+    path = _settings_path(out)
+    stored = json.loads(path.read_text())
+    stored.setdefault("provenance", []).append(
+        provenance(
+            threads=workers or 1,
+            ray_address=ray_address,
+            started=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        )
+    )
+    write_json_atomic(path, stored)
+
+
 def collect(
     settings: CollectSettings,
     out: str | os.PathLike,
@@ -563,6 +581,7 @@ def collect(
             writer = _open_writer(
                 settings, out, committed is not None, features, robot_type, commit_every
             )
+            _record_provenance(out, workers, ray_address)
             report.saved = writer.num_episodes
             if pending:  # the head attempt's clock starts now that results can be taken
                 pending[0] = (*pending[0][:2], time.monotonic())
