@@ -43,6 +43,7 @@ from wirecraft.assets.robots.kinematics import (
     rotation_error,
     rotation_errors,
 )
+from wirecraft.numerics import matmul, matvec, norm
 from wirecraft.registry import Registry
 
 CONTROL_SUBSTEPS = 8
@@ -365,22 +366,22 @@ class CartesianController(Controller):
         pos, rot, jac = kinematics
         base = state.base_rot_world
         # Accumulate the delta in the target pose (base-frame deltas -> world).
-        move = (base @ (arm_actions[:, :3] * cfg.translation_scale)[:, :, None])[:, :, 0]
-        rotvec = (base @ self._rotation_delta(arm_actions)[:, :, None])[:, :, 0]
+        move = matvec(base, arm_actions[:, :3] * cfg.translation_scale)
+        rotvec = matvec(base, self._rotation_delta(arm_actions))
         state.target_pos = state.target_pos + move
-        state.target_rot = axis_angle_to_mats(rotvec) @ state.target_rot
+        state.target_rot = matmul(axis_angle_to_mats(rotvec), state.target_rot)
         # Keep the target within reach of the measured TCP (no wind-up when blocked).
         lead = state.target_pos - pos
-        dist = np.linalg.norm(lead, axis=1)
+        dist = norm(lead, axis=1)
         far = dist > cfg.max_lead_pos
         if far.any():
             state.target_pos[far] = pos[far] + lead[far] * (cfg.max_lead_pos / dist[far])[:, None]
         rot_err = rotation_errors(state.target_rot, rot)
-        angle = np.linalg.norm(rot_err, axis=1)
+        angle = norm(rot_err, axis=1)
         wide = angle > cfg.max_lead_rot
         if wide.any():
             rot_err[wide] *= (cfg.max_lead_rot / angle[wide])[:, None]
-            state.target_rot[wide] = axis_angle_to_mats(rot_err[wide]) @ rot[wide]
+            state.target_rot[wide] = matmul(axis_angle_to_mats(rot_err[wide]), rot[wide])
         err = np.concatenate([state.target_pos - pos, rot_err], axis=1)
         dq = dls_limited_batch(jac, err, cfg.ik_damping, q, self.lower, self.upper)
         if self.robot.dof > 6 and cfg.nullspace_gain > 0.0:
@@ -396,7 +397,7 @@ class CartesianController(Controller):
     def _nullspace(self, jac: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """Pull toward home inside the Jacobian's null space (redundant arms), (N, dof)."""
         pull = self.config.nullspace_gain * (self.robot.home_qpos - q)
-        projected = pull - dls_batch(jac, (jac @ pull[:, :, None])[:, :, 0], 1e-4)
+        projected = pull - dls_batch(jac, matvec(jac, pull), 1e-4)
         moved = q + dq + projected
         inside = (moved >= self.lower) & (moved <= self.upper)
         return np.where(inside, projected, 0.0)
@@ -442,8 +443,8 @@ def servo_action(
     """
     cfg = controller.config
     base = controller.base_rot_world
-    pos = base.T @ (controller.target_pos - controller.base_pos_world)
-    rot = base.T @ controller.target_rot
+    pos = matvec(base.T, controller.target_pos - controller.base_pos_world)
+    rot = matmul(base.T, controller.target_rot)
     delta_pos = (np.asarray(target_pos, float) - pos) / cfg.translation_scale
     delta_rot = rotation_error(np.asarray(target_rot, float), rot) / cfg.rotation_scale
     parts = [delta_pos, delta_rot][: 1 + (controller.arm_action_dim == 6)]

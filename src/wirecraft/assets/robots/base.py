@@ -50,6 +50,7 @@ from wirecraft.assets.robots.kinematics import (
     solve_ik,
     transform,
 )
+from wirecraft.numerics import dot, matmul, matvec, norm
 from wirecraft.registry import Registry
 
 ROBOTS: Registry[RobotSpec] = Registry("robot")
@@ -105,7 +106,8 @@ class StandardDH:
 
     @staticmethod
     def _row(d: float, a: float, alpha: float) -> np.ndarray:
-        return transform(pos=(0, 0, d)) @ transform(pos=(a, 0, 0)) @ transform(rot_x(alpha))
+        shift = matmul(transform(pos=(0, 0, d)), transform(pos=(a, 0, 0)))
+        return matmul(shift, transform(rot_x(alpha)))
 
     def frames(self) -> ChainFrames:
         poses = [np.eye(4)] + [self._row(*row) for row in self.rows[:-1]]
@@ -127,7 +129,8 @@ class ModifiedDH:
 
     @staticmethod
     def _row(a: float, d: float, alpha: float) -> np.ndarray:
-        return transform(rot_x(alpha)) @ transform(pos=(a, 0, 0)) @ transform(pos=(0, 0, d))
+        turn = matmul(transform(rot_x(alpha)), transform(pos=(a, 0, 0)))
+        return matmul(turn, transform(pos=(0, 0, d)))
 
     def frames(self) -> ChainFrames:
         poses = tuple(self._row(*row) for row in self.rows)
@@ -237,7 +240,7 @@ class RobotSpec:
     @property
     def home_tcp_rot(self) -> np.ndarray:
         """(3, 3) TCP orientation at home in the base frame (approach axis down)."""
-        return rot_z(self.home_yaw) @ HOME_TCP_ROT
+        return matmul(rot_z(self.home_yaw), HOME_TCP_ROT)
 
 
 # -- model building -------------------------------------------------------------------------
@@ -255,7 +258,7 @@ def _add_link_geoms(
     sharing the published link mass in proportion to their volumes."""
     r = joint.radius
     pieces = []
-    length = float(np.linalg.norm(child))
+    length = norm(child)
     housing_half = 0.9 * r
     pieces.append(
         dict(
@@ -286,10 +289,10 @@ def _add_link_geoms(
 
 def _z_to(axis: np.ndarray) -> np.ndarray:
     """Quaternion turning +z onto ``axis``."""
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    axis = np.asarray(axis, float) / norm(axis)
     z = np.array([0.0, 0.0, 1.0])
     cross = np.cross(z, axis)
-    s, c = np.linalg.norm(cross), float(z @ axis)
+    s, c = norm(cross), dot(z, axis)
     if s < 1e-9:
         return np.array([1.0, 0.0, 0.0, 0.0]) if c > 0 else np.array([0.0, 1.0, 0.0, 0.0])
     half = math.atan2(s, c) / 2
@@ -563,7 +566,7 @@ class RobotHandle:
         pos, rot = self.tcp_pose(model, data)
         base_pos = data.site_xpos[idx.base_site]
         base_rot = data.site_xmat[idx.base_site].reshape(3, 3)
-        return base_rot.T @ (pos - base_pos), base_rot.T @ rot
+        return matvec(base_rot.T, pos - base_pos), matmul(base_rot.T, rot)
 
     def proprioception(self, model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
         """(2 dof + 2,): joint angles, gripper opening, joint velocities, gripper opening rate."""

@@ -22,6 +22,7 @@ import numpy as np
 
 from wirecraft import physics, validation
 from wirecraft.assets.robots.kinematics import mat_to_quat, rot_z
+from wirecraft.numerics import norm
 from wirecraft.registry import Registry
 
 GRIPPERS: Registry[GripperSpec] = Registry("gripper")
@@ -121,9 +122,9 @@ def _robot_geom(geom: mujoco.MjsGeom) -> mujoco.MjsGeom:
 def _look_at_quat(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
     """Quaternion of a MuJoCo camera at ``eye`` looking at ``target`` (camera -z = view)."""
     back = eye - target
-    back /= np.linalg.norm(back)
+    back /= norm(back)
     right = np.cross(up, back)
-    right /= np.linalg.norm(right)
+    right /= norm(right)
     cam_up = np.cross(back, right)
     return mat_to_quat(np.column_stack([right, cam_up, back]))
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from wirecraft.numerics import arctan2, matmul, matvec, norm, solve_spd
+
 
 # -- elementary transforms -------------------------------------------------------------------
 def rot_x(angle: float) -> np.ndarray:
@@ -49,36 +51,36 @@ def quat_to_mat(quat) -> np.ndarray:
 
 def axis_angle_to_mat(rotvec: np.ndarray) -> np.ndarray:
     """Rotation matrix of the rotation vector ``rotvec`` (axis * angle, radians)."""
-    angle = float(np.linalg.norm(rotvec))
+    angle = norm(rotvec)
     if angle < 1e-12:
         return np.eye(3)
     k = np.asarray(rotvec, dtype=float) / angle
     kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * (kx @ kx)
+    return np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * matmul(kx, kx)
 
 
 def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
     """Axis * angle (3,) of the rotation taking ``current`` to ``target`` (both (3, 3), world)."""
-    quat = mat_to_quat(target @ current.T)
+    quat = mat_to_quat(matmul(target, current.T))
     if quat[0] < 0.0:
         quat = -quat
     vec = quat[1:]
-    norm = float(np.linalg.norm(vec))
-    if norm < 1e-12:
+    length = norm(vec)
+    if length < 1e-12:
         return np.zeros(3)
-    return 2.0 * np.arctan2(norm, quat[0]) * vec / norm
+    return 2.0 * arctan2(length, quat[0]) * vec / length
 
 
 def angle_between(a: np.ndarray, b: np.ndarray) -> float:
     """Angle in radians between two rotation matrices."""
-    return float(np.linalg.norm(rotation_error(a, b)))
+    return norm(rotation_error(a, b))
 
 
 # -- differential IK ------------------------------------------------------------------------
 def dls(jac: np.ndarray, err: np.ndarray, damping: float) -> np.ndarray:
     """Damped least squares: argmin |J dq - e|^2 + damping^2 |dq|^2.  jac (6, n), err (6,)."""
     rows = jac.shape[0]
-    return jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(rows), err)
+    return matvec(jac.T, solve_spd(matmul(jac, jac.T) + damping**2 * np.eye(rows), err))
 
 
 def dls_limited(
@@ -101,7 +103,7 @@ def dls_limited(
     dq[over] = fixed[over]
     free = ~over
     if free.any():
-        residual = err - jac[:, over] @ dq[over]
+        residual = err - matvec(jac[:, over], dq[over])
         dq[free] = dls(jac[:, free], residual, damping)
     return np.clip(q + dq, lower, upper) - q
 
@@ -146,7 +148,7 @@ def solve_ik(
         mujoco.mj_comPos(model, data)
         pos, rot = site_pose(model, data, site_id)
         err = np.concatenate([target_pos - pos, rotation_error(target_rot, rot)])
-        err_norm = float(np.linalg.norm(err))
+        err_norm = norm(err)
         if err_norm < tolerance:
             break
         q = data.qpos[qpos_adr]
@@ -172,7 +174,7 @@ def quats_to_mats(quats: np.ndarray) -> np.ndarray:
     """(N, 3, 3) rotations of (N, 4) quaternions (w, x, y, z), normalised first: ``mju_quat2Mat``
     per row, in numpy (learners map whole batches of states)."""
     q = np.asarray(quats, dtype=float)
-    w, x, y, z = (q / np.linalg.norm(q, axis=-1, keepdims=True)).T
+    w, x, y, z = (q / norm(q, axis=-1, keepdims=True)).T
     rows = (
         (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)),
         (2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)),
@@ -215,7 +217,7 @@ def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def axis_angle_to_mats(rotvecs: np.ndarray) -> np.ndarray:
     """(N, 3, 3) rotation matrices of (N, 3) rotation vectors (axis * angle, radians)."""
     rotvecs = np.asarray(rotvecs, dtype=float)
-    angle = np.linalg.norm(rotvecs, axis=1)
+    angle = norm(rotvecs, axis=1)
     still = angle < 1e-12
     k = rotvecs / np.where(still, 1.0, angle)[:, None]
     zero = np.zeros_like(angle)
@@ -230,7 +232,7 @@ def axis_angle_to_mats(rotvecs: np.ndarray) -> np.ndarray:
     mats = (
         np.eye(3)
         + np.sin(angle)[:, None, None] * kx
-        + (1.0 - np.cos(angle))[:, None, None] * (kx @ kx)
+        + (1.0 - np.cos(angle))[:, None, None] * matmul(kx, kx)
     )
     mats[still] = np.eye(3)
     return mats
@@ -238,20 +240,21 @@ def axis_angle_to_mats(rotvecs: np.ndarray) -> np.ndarray:
 
 def rotation_errors(targets: np.ndarray, currents: np.ndarray) -> np.ndarray:
     """(N, 3) axis * angle of the rotations taking ``currents`` to ``targets`` (N, 3, 3)."""
-    quat = mats_to_quats(targets @ np.swapaxes(currents, 1, 2))
+    quat = mats_to_quats(matmul(targets, np.swapaxes(currents, 1, 2)))
     quat = np.where(quat[:, :1] < 0.0, -quat, quat)
     vec = quat[:, 1:]
-    norm = np.linalg.norm(vec, axis=1)
-    small = norm < 1e-12
-    scale = 2.0 * np.arctan2(norm, quat[:, 0]) / np.where(small, 1.0, norm)
+    length = norm(vec, axis=1)
+    small = length < 1e-12
+    scale = 2.0 * arctan2(length, quat[:, 0]) / np.where(small, 1.0, length)
     return np.where(small[:, None], 0.0, vec * scale[:, None])
 
 
 def dls_batch(jac: np.ndarray, err: np.ndarray, damping: float) -> np.ndarray:
     """(N, n) damped least squares per environment: jac (N, 6, n), err (N, 6)."""
     rows = jac.shape[1]
-    gram = jac @ np.swapaxes(jac, 1, 2) + damping**2 * np.eye(rows)
-    return (np.swapaxes(jac, 1, 2) @ np.linalg.solve(gram, err[:, :, None]))[:, :, 0]
+    jac_t = np.swapaxes(jac, 1, 2)
+    gram = matmul(jac, jac_t) + damping**2 * np.eye(rows)
+    return matvec(jac_t, solve_spd(gram, err))
 
 
 def dls_limited_batch(jac, err, damping: float, q, lower, upper) -> np.ndarray:
@@ -265,7 +268,7 @@ def dls_limited_batch(jac, err, damping: float, q, lower, upper) -> np.ndarray:
         row[over[r]] = fixed[over[r]]
         free = ~over[r]
         if free.any():
-            residual = err[r] - jac[r][:, over[r]] @ row[over[r]]
+            residual = err[r] - matvec(jac[r][:, over[r]], row[over[r]])
             row[free] = dls_batch(jac[r][None][:, :, free], residual[None], damping)[0]
         dq[r] = np.clip(q[r] + row, lower, upper) - q[r]
     return dq
