@@ -12,7 +12,13 @@ import os
 if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
     os.environ["MUJOCO_GL"] = "egl"
 
+import logging  # noqa: E402
+
 import gymnasium as gym  # noqa: E402
+import mujoco  # noqa: E402
+
+# MuJoCo's warnings go to logging, not to a MUJOCO_LOG.TXT in the working folder.
+mujoco.set_mju_user_warning(logging.getLogger("wirecraft.mujoco").warning)
 
 __version__ = "0.1.0"
 
