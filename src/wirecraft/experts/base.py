@@ -31,6 +31,7 @@ import numpy as np
 from wirecraft.assets.robots.kinematics import rotation_error
 from wirecraft.control import servo_action
 from wirecraft.experts.fsm import Phase, VectorFSM, step_toward, unwrap_envs
+from wirecraft.numerics import dot, matmul, norm
 
 UP = np.array([0.0, 0.0, 1.0])  # world
 TABLE_Z = 0.0  # m, table top (world; wirecraft.scene puts it at z = 0)
@@ -38,19 +39,19 @@ TABLE_Z = 0.0  # m, table top (world; wirecraft.scene puts it at z = 0)
 
 def rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
     """Angle (rad) of the rotation between rotation matrices ``a`` and ``b``."""
-    return float(np.linalg.norm(rotation_error(a, b)))
+    return norm(rotation_error(a, b))
 
 
 def flat(v: np.ndarray, up: np.ndarray) -> np.ndarray:
     """``v`` (..., 3) without its component along ``up``."""
-    return v - np.multiply.outer(v @ up, up)
+    return v - np.multiply.outer(dot(v, up), up)
 
 
 def horizontal(v: np.ndarray, up: np.ndarray) -> np.ndarray:
     """Unit vector along ``v`` (3,) without its component along ``up`` (near zero, not unit,
     where that component is all of ``v``: a zero ``v`` gives zeros)."""
     v = flat(v, up)
-    return v / max(np.linalg.norm(v), 1e-9)
+    return v / max(norm(v), 1e-9)
 
 
 @dataclass(frozen=True)
@@ -75,11 +76,11 @@ class RobotView:
 
     def to_base(self, points) -> np.ndarray:
         """World points (..., 3) in the robot base frame."""
-        return (np.asarray(points, float) - self.base_pos) @ self.base_rot
+        return matmul(np.asarray(points, float) - self.base_pos, self.base_rot)
 
     def rot_to_base(self, rot) -> np.ndarray:
         """A world rotation matrix in the robot base frame."""
-        return self.base_rot.T @ np.asarray(rot, float)
+        return matmul(self.base_rot.T, np.asarray(rot, float))
 
 
 def robot_fields(env) -> dict:
@@ -97,8 +98,8 @@ def robot_fields(env) -> dict:
         "up": base_rot[2].copy(),  # base_rot.T @ (0, 0, 1)
         "tcp_pos": tcp_pos,
         "tcp_rot": tcp_rot,
-        "target_pos": world.T @ (ctl.target_pos - ctl.base_pos_world),
-        "target_rot": world.T @ ctl.target_rot,
+        "target_pos": matmul(world.T, ctl.target_pos - ctl.base_pos_world),
+        "target_rot": matmul(world.T, ctl.target_rot),
         "gripper_opening": float(robot.gripper_opening(model, data)),
         "gripper_velocity": float(robot.gripper_velocity(model, data)),
         "max_opening": float(robot.max_opening),
@@ -187,28 +188,28 @@ class ScriptedExpert:
 
     def _up(self, i):
         """The world's up (unit, (3,)) in environment ``i``'s robot base frame."""
-        return self._base(i)[1].T @ UP
+        return matmul(self._base(i)[1].T, UP)
 
     def _to_base(self, i, points):
         """World points (..., 3) in environment ``i``'s robot base frame."""
         origin, base = self._base(i)
-        return (np.asarray(points, float) - origin) @ base
+        return matmul(np.asarray(points, float) - origin, base)
 
     def _height(self, i, point) -> float:
         """Height (m) of a base-frame point above the table (z = 0 in the world)."""
-        return float(np.dot(point - self._to_base(i, np.zeros(3)), self._up(i)))
+        return dot(point - self._to_base(i, np.zeros(3)), self._up(i))
 
     def _ctl_target(self, i):
         """The controller's own target pose (it may lead the TCP), in the base frame."""
         ctl = self.envs[i].controller
         base = ctl.base_rot_world
-        return base.T @ (ctl.target_pos - ctl.base_pos_world), base.T @ ctl.target_rot
+        return matmul(base.T, ctl.target_pos - ctl.base_pos_world), matmul(base.T, ctl.target_rot)
 
     def _steps_still(self, i, tcp_pos, distance: float) -> int:
         """Control steps the TCP (``tcp_pos``, base frame) has stayed within ``distance`` (m)
         of where it last moved, in the current phase: 0 on the phase's first step and whenever
         it moves farther.  Call it once per control step while the count matters."""
-        if self.fsm.steps[i] == 0 or np.linalg.norm(tcp_pos - self._still_from[i]) > distance:
+        if self.fsm.steps[i] == 0 or norm(tcp_pos - self._still_from[i]) > distance:
             self._still_from[i] = tcp_pos
             self._still_count[i] = 0
         else:
@@ -248,7 +249,7 @@ class ScriptedExpert:
             view = self.views[i] = self.read_state(i)
             goal_pos, goal_rot, speed, gripper, own = self._goals(i)
             tcp_rot, target_pos, target_rot = view.tcp_rot, view.target_pos, view.target_rot
-            pos_err[i] = np.linalg.norm(goal_pos - view.tcp_pos)
+            pos_err[i] = norm(goal_pos - view.tcp_pos)
             if goal_rot is None:  # fixed orientation: hold the controller's
                 goal_rot = target_rot
             else:

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wirecraft.numerics import norm
+
 
 @dataclass(frozen=True)
 class Phase:
@@ -216,5 +218,5 @@ def unwrap_envs(env_or_envs) -> list:
 def step_toward(start: np.ndarray, goal: np.ndarray, max_step: float) -> np.ndarray:
     """``goal``, or the point ``max_step`` from ``start`` on the way to it."""
     delta = goal - start
-    dist = float(np.linalg.norm(delta))
+    dist = norm(delta)
     return goal if dist <= max_step else start + delta * (max_step / dist)

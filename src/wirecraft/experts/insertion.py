@@ -58,6 +58,7 @@ from wirecraft.experts.base import (
     rotation_angle,
 )
 from wirecraft.experts.fsm import Phase
+from wirecraft.numerics import dot, matmul, norm
 
 
 # -- the privileged state it reads ------------------------------------------------------------
@@ -110,7 +111,7 @@ def read_insertion(env) -> InsertionView:
     base_pos, base_rot = fields["base_pos"], fields["base_rot"]
 
     def to_base(points):
-        return (np.asarray(points, float) - base_pos) @ base_rot
+        return matmul(np.asarray(points, float) - base_pos, base_rot)
 
     assembly, connector = task.assembly, task.connector
     plug_pos, plug_rot = assembly.plug_pose(data)
@@ -122,11 +123,11 @@ def read_insertion(env) -> InsertionView:
     return InsertionView(
         **fields,
         plug_pos=to_base(plug_pos),
-        plug_rot=base_rot.T @ plug_rot,
-        plug_speed=float(np.linalg.norm(velocity[3:])),
+        plug_rot=matmul(base_rot.T, plug_rot),
+        plug_speed=norm(velocity[3:]),
         grasp_point=to_base(data.site_xpos[assembly.grasp_site]),
         tip=to_base(data.site_xpos[assembly.tip_site]),
-        port_rot=base_rot.T @ data.xmat[task.port_id].reshape(3, 3),
+        port_rot=matmul(base_rot.T, data.xmat[task.port_id].reshape(3, 3)),
         entry=to_base(data.site_xpos[task.entry_site]),
         seated=to_base(data.site_xpos[task.seated_site]),
         held=bool(task.held(model, data)),
@@ -285,10 +286,10 @@ def grasp_pose(grasp_point, plug_rot, up, table_height, *, back, min_height, pit
     the tail ``back`` m behind ``grasp_point``, at least ``min_height`` above the table, the
     pads' tops leaning ``pitch`` rad back toward the wire; of the parallel gripper's two
     equivalent yaws, the one nearer the rotation ``reference``."""
-    axis = plug_rot[:, 0] - np.dot(plug_rot[:, 0], up) * up
-    axis /= np.linalg.norm(axis)
+    axis = plug_rot[:, 0] - dot(plug_rot[:, 0], up) * up
+    axis /= norm(axis)
     grasp = grasp_point - back * axis
-    height = np.dot(grasp, up) - table_height
+    height = dot(grasp, up) - table_height
     grasp = grasp + (max(height, min_height) - height) * up
     z = -up
     best = None
@@ -300,21 +301,21 @@ def grasp_pose(grasp_point, plug_rot, up, table_height, *, back, min_height, pit
     # The lean lets the gripper later pitch forward (to keep a plug that turns in the pads
     # aligned) without its pads reaching the port's face.
     lean = axis_angle_to_mat(np.cross(up, axis) * pitch)
-    if np.dot(-(lean @ best)[:, 2], axis) > 0:
+    if dot(-matmul(lean, best)[:, 2], axis) > 0:
         lean = lean.T
-    return grasp, lean @ best
+    return grasp, matmul(lean, best)
 
 
 def plug_goal_rot(port_rot, plug_rot, symmetry: int) -> np.ndarray:
     """Plug rotation (base frame) aligned with the socket, its roll the equivalent (under the
     connector's ``symmetry``, 0: continuous) nearest to the plug's current roll."""
     axis = port_rot[:, 0]
-    up = plug_rot[:, 2] - np.dot(plug_rot[:, 2], axis) * axis
-    roll = math.atan2(float(np.dot(np.cross(port_rot[:, 2], up), axis)), float(port_rot[:, 2] @ up))
+    up = plug_rot[:, 2] - dot(plug_rot[:, 2], axis) * axis
+    roll = math.atan2(dot(np.cross(port_rot[:, 2], up), axis), dot(port_rot[:, 2], up))
     if symmetry > 0:
         step = 2 * math.pi / symmetry
         roll = step * round(roll / step)
-    return port_rot @ _rot_x(roll)
+    return matmul(port_rot, _rot_x(roll))
 
 
 def gripper_for_gap(gap: float, max_opening: float) -> float:
@@ -454,8 +455,8 @@ class InsertionExpert(ScriptedExpert):
         """(4, 4) the plug's pose in the TCP frame now."""
         view = self.views[i]
         rel = np.eye(4)
-        rel[:3, :3] = view.tcp_rot.T @ view.plug_rot
-        rel[:3, 3] = view.tcp_rot.T @ (view.plug_pos - view.tcp_pos)
+        rel[:3, :3] = matmul(view.tcp_rot.T, view.plug_rot)
+        rel[:3, 3] = matmul(view.tcp_rot.T, view.plug_pos - view.tcp_pos)
         return rel
 
     # -- geometry of the insertion -------------------------------------------------------------
@@ -474,8 +475,8 @@ class InsertionExpert(ScriptedExpert):
             fsm.snapshots["plug_in_tcp"][i] = self._grasp_transform(i)
         rel = fsm.get("plug_in_tcp")[i]
         plug_pos = tip - self.views[i].plug_length * plug_rot[:, 0]
-        tcp_rot = plug_rot @ rel[:3, :3].T
-        return plug_pos - tcp_rot @ rel[:3, 3], tcp_rot
+        tcp_rot = matmul(plug_rot, rel[:3, :3].T)
+        return plug_pos - matmul(tcp_rot, rel[:3, 3]), tcp_rot
 
     # -- control -------------------------------------------------------------------------------
     def _pre_open(self, i) -> float:
@@ -492,10 +493,10 @@ class InsertionExpert(ScriptedExpert):
         name = self.PHASES[self.fsm.phase[i]].name
         if name == "pre_insert":
             error = goal_pos - view.tcp_pos
-            if np.linalg.norm(error) < cfg.sag_window:
+            if norm(error) < cfg.sag_window:
                 offset = self.sag[i] + cfg.sag_gain * error
-                norm = np.linalg.norm(offset)
-                self.sag[i] = offset if norm <= cfg.sag_limit else offset * (cfg.sag_limit / norm)
+                size = norm(offset)
+                self.sag[i] = offset if size <= cfg.sag_limit else offset * (cfg.sag_limit / size)
         elif name != "insert":
             self.sag[i] = 0.0
         return self.sag[i]
@@ -581,9 +582,9 @@ class InsertionExpert(ScriptedExpert):
             rest = self._rest_rot(i, plug_rot)
             full = rotation_angle(rest, plug_rot)
             frac = 1.0 if full < 1e-9 else min(1.0, (steps + 1) * cfg.tilt_speed / full)
-            rest_now = axis_angle_to_mat(frac * rotation_error(rest, plug_rot)) @ plug_rot
-            rise = view.up - np.dot(view.up, axis) * axis
-            rise *= frac * cfg.release_rise * view.clearance / max(np.linalg.norm(rise), 1e-9)
+            rest_now = matmul(axis_angle_to_mat(frac * rotation_error(rest, plug_rot)), plug_rot)
+            rise = view.up - dot(view.up, axis) * axis
+            rise *= frac * cfg.release_rise * view.clearance / max(norm(rise), 1e-9)
             pos, rot = self._tcp_for_tip(i, view.seated + cfg.push * axis + rise, rest_now)
             done = (frac >= 1.0 and rotation_angle(view.plug_rot, rest) < 0.03) or (
                 steps >= TILT_STEPS
@@ -621,7 +622,8 @@ class InsertionExpert(ScriptedExpert):
             return view.target_pos, view.target_rot, speed
         keep = 1.0 - cfg.force_backoff
         turn = axis_angle_to_mat(keep * rotation_error(view.target_rot, view.tcp_rot))
-        return view.tcp_pos + keep * (view.target_pos - view.tcp_pos), turn @ view.tcp_rot, 1.0
+        pos = view.tcp_pos + keep * (view.target_pos - view.tcp_pos)
+        return pos, matmul(turn, view.tcp_rot), 1.0
 
     def _rest_rot(self, i, plug_rot) -> np.ndarray:
         """The seated plug's rotation tipped (tail down, tip up) by ``release_tilt`` of the
@@ -631,11 +633,11 @@ class InsertionExpert(ScriptedExpert):
         view = self.views[i]
         axis = plug_rot[:, 0]
         across = np.cross(view.up, axis)
-        norm = np.linalg.norm(across)
-        if norm < 1e-6:  # a vertical socket: no sag direction
+        length = norm(across)
+        if length < 1e-6:  # a vertical socket: no sag direction
             return plug_rot
         angle = self.config.release_tilt * math.atan2(2.0 * view.clearance, view.cavity_depth)
-        return axis_angle_to_mat(-across / norm * angle) @ plug_rot
+        return matmul(axis_angle_to_mat(-across / length * angle), plug_rot)
 
     def _drop_pending(self, i) -> bool:
         return bool(self.pick_and_drop[i] and not self.dropped[i])

@@ -35,6 +35,7 @@ import numpy as np
 from wirecraft.assets.robots.kinematics import quat_to_mat, rotation_error
 from wirecraft.experts.fsm import unwrap_envs
 from wirecraft.experts.insertion import grasp_pose, gripper_for_gap, plug_goal_rot
+from wirecraft.numerics import dot, matmul, norm
 
 PHASES = (
     "approach",
@@ -122,7 +123,7 @@ class ReactiveInsertionExpert:
         base_rot = data.site_xmat[base].reshape(3, 3)
         self.up = base_rot[2].copy()  # world +z in the base frame
         self.table = -float(base_pos[2])  # the table top (world z = 0) in the base frame
-        self.port_rot = base_rot.T @ data.xmat[task.port_id].reshape(3, 3)
+        self.port_rot = matmul(base_rot.T, data.xmat[task.port_id].reshape(3, 3))
         self.grasp_local = model.site_pos[task.assembly.grasp_site].copy()
         connector = task.connector
         self.plug_length = float(connector.plug_length)
@@ -166,7 +167,7 @@ class ReactiveInsertionExpert:
         robot's home orientation (a choice by the TCP's own yaw, as the scripted expert makes
         by its target's, would flip the goal, and the label, as the wrist turns)."""
         return grasp_pose(
-            plug_pos + plug_rot @ self.grasp_local,
+            plug_pos + matmul(plug_rot, self.grasp_local),
             plug_rot,
             self.up,
             self.table,
@@ -187,11 +188,11 @@ class ReactiveInsertionExpert:
         home = state[lay.axial] < self.seated_axial and state[lay.lateral] < (
             self.clearance + self.seated_lateral
         )
-        if home or (not held and np.linalg.norm(state[lay.tip_to_target]) < 0.004):
+        if home or (not held and norm(state[lay.tip_to_target]) < 0.004):
             if opening < self.tail_width + 0.5 * self.pre_open_margin:
                 return np.zeros(3), np.zeros(3), self.open_command, "release"
-            top = float(np.dot(state[lay.seated], up)) + self.retreat
-            rise = min(self.retreat_speed, max(0.0, self.gain * (top - float(np.dot(tcp, up)))))
+            top = dot(state[lay.seated], up) + self.retreat
+            rise = min(self.retreat_speed, max(0.0, self.gain * (top - dot(tcp, up))))
             return rise * up, np.zeros(3), self.open_command, "retreat"
         if held:
             return self._carry(state, tcp, tcp_rot)
@@ -209,12 +210,12 @@ class ReactiveInsertionExpert:
         turning = rotation_error(grasp_rot, tcp_rot)
         turn = self.gain * turning
         offset = tcp - grasp
-        above = float(offset @ up)
-        across = float(np.linalg.norm(offset - above * up))
-        off = max(across / self.at_grasp, np.linalg.norm(turning) / self.grasp_rot_tol)
+        above = dot(offset, up)
+        across = norm(offset - above * up)
+        off = max(across / self.at_grasp, norm(turning) / self.grasp_rot_tol)
         lift = float(np.clip(off - 0.5, 0.0, 1.0))
         move = self.gain * (grasp + lift * self.hover * up - tcp)
-        down = float(move @ up)
+        down = dot(move, up)
         if down < -self.descend_speed:  # the last centimetres slowly
             move -= (down + self.descend_speed) * up
         move = _capped(move, self.translation_scale)
@@ -233,7 +234,7 @@ class ReactiveInsertionExpert:
         the table, rise before moving sideways.  The plug's pose in the TCP frame is measured
         from the state, so a plug that turned in the pads is followed."""
         lay, up = self.layout, self.up
-        height = float(np.dot(tcp, up)) - self.table
+        height = dot(tcp, up) - self.table
         if abs(state[lay.opening_rate]) > self.settle_rate and height < 0.03:
             return np.zeros(3), np.zeros(3), 1.0, "settle"  # the pads still closing
         plug_rot = quat_to_mat(state[lay.plug_quat])
@@ -243,25 +244,23 @@ class ReactiveInsertionExpert:
         axis = goal_rot[:, 0]
         twist = rotation_error(goal_rot, plug_rot)  # turns the plug (and the TCP) onto goal_rot
         offset = tip - state[lay.entry]
-        along = float(offset @ axis)
+        along = dot(offset, axis)
         lateral = offset - along * axis
         inside = float(np.clip(along / 0.003, 0.0, 1.0))  # 0 outside the mouth, 1 past 3 mm
         lateral_tol = self.align_lateral + inside * (self.clearance + 0.001 - self.align_lateral)
         rot_tol = self.align_rot + inside * (self.inside_rot - self.align_rot)
-        misalignment = max(np.linalg.norm(lateral) / lateral_tol, np.linalg.norm(twist) / rot_tol)
+        misalignment = max(norm(lateral) / lateral_tol, norm(twist) / rot_tol)
         aligned = float(np.clip(1.5 - misalignment, 0.0, 1.0))
         drive = max(
             self.gain * (-self.pre_insert - along),
             self.insert_speed * (2.0 * aligned - 1.0),
         )
-        drive = min(
-            drive, self.gain * (float((seated - state[lay.entry]) @ axis) + self.push - along)
-        )
+        drive = min(drive, self.gain * (dot(seated - state[lay.entry], axis) + self.push - along))
         tip_move = _capped(drive * axis - self.gain * lateral, self.align_speed)
         turn = self.gain * twist
         move = tip_move - np.cross(turn, tip - tcp)  # the turn about the TCP moves the tip too
         # Low over the table and far from the socket, rise first (the port hangs 5-18 cm up).
-        far = np.linalg.norm(offset - float(offset @ up) * up)
+        far = norm(offset - dot(offset, up) * up)
         free = max(
             float(np.clip((height - 0.04) / (self.carry_height - 0.04), 0.0, 1.0)),
             float(np.clip((0.05 - far) / 0.02, 0.0, 1.0)),
@@ -281,5 +280,5 @@ class ReactiveInsertionExpert:
 
 
 def _capped(vector, limit: float) -> np.ndarray:
-    norm = float(np.linalg.norm(vector))
-    return vector if norm <= limit else vector * (limit / norm)
+    length = norm(vector)
+    return vector if length <= limit else vector * (limit / length)

@@ -77,6 +77,7 @@ import numpy as np
 from wirecraft import validation
 from wirecraft.experts.base import ScriptedExpert, flat, horizontal, rotation_angle
 from wirecraft.experts.fsm import Phase
+from wirecraft.numerics import arctan2, dot, matmul, norm
 from wirecraft.tasks.assembly import arc_lengths, resample
 from wirecraft.tasks.routing import MAX_CLIPS
 
@@ -306,7 +307,7 @@ class RoutingExpert(ScriptedExpert):
         world_axis = np.array([np.cos(clip.yaw), np.sin(clip.yaw), 0.0])
         slot = np.array(clip.pos) + [0.0, 0.0, clip.config.base_height]
         _, base = self._base(i)
-        return self._to_base(i, slot), base.T @ world_axis, clip.config
+        return self._to_base(i, slot), matmul(base.T, world_axis), clip.config
 
     def _anchor(self, i):
         """(anchor point (base frame), its arc length along the wire): the clamp for the first
@@ -318,7 +319,7 @@ class RoutingExpert(ScriptedExpert):
             return self._to_base(i, clamp), 0.0
         slot, _, _ = self._clip_geometry(i, self.clip[i] - 1)
         arc = arc_lengths(points)
-        return slot, float(arc[np.argmin(np.linalg.norm(points - slot, axis=1))])
+        return slot, float(arc[np.argmin(norm(points - slot, axis=1))])
 
     def seated(self, i, margin: float | None = None) -> np.ndarray:
         """(clips,) bool: the expert's own reading of which slots hold the wire: some point of
@@ -363,7 +364,7 @@ class RoutingExpert(ScriptedExpert):
         clips = [self._to_base(i, np.array(c.pos)) for c in env.task.placed_clips(env.data)]
         clear = np.ones(len(points), bool)
         for c in clips:
-            clear &= np.linalg.norm(flat(points - c, up), axis=1) > cfg.clip_clearance
+            clear &= norm(flat(points - c, up), axis=1) > cfg.clip_clearance
         clear &= (arc <= arc[-1] - cfg.plug_clearance) & (arc > anchor_arc)
         far = arc >= need
         for ok in (clear & far, clear, arc > anchor_arc, np.ones(len(points), bool)):
@@ -379,7 +380,7 @@ class RoutingExpert(ScriptedExpert):
         elif (clear & far).any():
             k = candidates[0]  # the first point far enough: the wire is nearly taut at the front
         else:
-            k = candidates[np.argmin(np.linalg.norm(points[candidates] - slot, axis=1))]
+            k = candidates[np.argmin(norm(points[candidates] - slot, axis=1))]
         tangent = points[min(k + 1, len(points) - 1)] - points[max(k - 1, 0)]
         # A wire lying raised (over a clip, or arched) is grasped at its own height, so that it
         # sits low between the pads: the push can then take it down to the slot.
@@ -396,7 +397,7 @@ class RoutingExpert(ScriptedExpert):
         articulated wire's 33 mm capsules against 12 mm), not of short pieces that bend
         anywhere (rod, FEM)."""
         env = self.envs[i]
-        link = np.median(np.linalg.norm(np.diff(env.wire_points(), axis=0), axis=1))
+        link = np.median(norm(np.diff(env.wire_points(), axis=0), axis=1))
         return bool(link >= env.task.placed_clips(env.data)[self.clip[i]].config.length)
 
     def _carry_height(self, i) -> float:
@@ -423,11 +424,11 @@ class RoutingExpert(ScriptedExpert):
         up = self._up(i)
         nodes = self._to_base(i, self.envs[i].wire_points())
         line = resample(nodes, 0.002)
-        across = np.linalg.norm(flat(line - tcp_pos, up), axis=1)
+        across = norm(flat(line - tcp_pos, up), axis=1)
         k = int(np.argmin(across))
         if across[k] > 0.01:
             return self.config.wire_below_tcp
-        return float(np.dot(tcp_pos - line[k], up))
+        return dot(tcp_pos - line[k], up)
 
     def _rise(self, i, anchor):
         """m the held wire's centre stands above ``anchor`` at the carry height."""
@@ -435,7 +436,7 @@ class RoutingExpert(ScriptedExpert):
 
     def _taut_length(self, i, slot, anchor):
         """m of wire from the anchor to the clip front at the carry height, pulled straight."""
-        reach = np.linalg.norm(flat(slot - anchor, self._up(i)))
+        reach = norm(flat(slot - anchor, self._up(i)))
         return float(np.hypot(reach + self.config.front, self._rise(i, anchor)))
 
     def _stretch_goal(self, i):
@@ -446,7 +447,7 @@ class RoutingExpert(ScriptedExpert):
         up = self._up(i)
         slot, _, _ = self._clip_geometry(i)
         anchor, direction = fsm.get("anchor")[i], fsm.get("direction")[i]
-        reach = np.linalg.norm(flat(slot - anchor, up))
+        reach = norm(flat(slot - anchor, up))
         straight = np.sqrt(max(self.free_wire[i] ** 2 - self._rise(i, anchor) ** 2, 0.0))
         distance = max(straight + cfg.over_pull, reach + cfg.front + cfg.over_pull)
         return self._at_height(i, anchor + distance * direction, self._carry_height(i))
@@ -460,8 +461,8 @@ class RoutingExpert(ScriptedExpert):
         stretch = self._stretch_goal(i)
         direction = fsm.get("direction")[i]
         offset = flat(fsm.get("lift_from")[i] - stretch, up)
-        offset = offset - np.dot(offset, direction) * direction
-        size = np.linalg.norm(offset)
+        offset = offset - dot(offset, direction) * direction
+        size = norm(offset)
         if size < 1e-6:
             return stretch
         return stretch + offset * min(1.0, cfg.side_gap / size)
@@ -477,13 +478,13 @@ class RoutingExpert(ScriptedExpert):
         start = flat(self.fsm.get("lift_from")[i], up)
         end = flat(self._beside_goal(i), up)
         span = end - start
-        t_max = max(float(span @ span), 1e-12)
+        t_max = max(dot(span, span), 1e-12)
         for k, clip in enumerate(env.task.placed_clips(env.data)):
             if k == self.clip[i]:
                 continue
             centre = flat(self._to_base(i, np.array(clip.pos)), up)
-            t = np.clip((centre - start) @ span / t_max, 0.0, 1.0)
-            if np.linalg.norm(start + t * span - centre) < cfg.clip_clearance:
+            t = np.clip(dot(centre - start, span) / t_max, 0.0, 1.0)
+            if norm(start + t * span - centre) < cfg.clip_clearance:
                 return self._carry_height(i)
         return cfg.sweep_height
 
@@ -501,7 +502,7 @@ class RoutingExpert(ScriptedExpert):
         if not len(trail):
             return False
         for clip in env.task.placed_clips(env.data)[self.clip[i] + 1 :]:
-            gaps = np.linalg.norm(flat(trail - self._to_base(i, np.array(clip.pos)), up), axis=1)
+            gaps = norm(flat(trail - self._to_base(i, np.array(clip.pos)), up), axis=1)
             if gaps.min() < cfg.clip_clearance:
                 return True
         return False
@@ -534,8 +535,8 @@ class RoutingExpert(ScriptedExpert):
         target = slot + offset * lateral
         offsets = self._pad_tip_offsets(i)
         tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
-        goal = min((target - off for off in offsets), key=lambda g: np.linalg.norm(g - tcp_pos))
-        pad_end = -np.dot(offsets[0], self._up(i))  # m the pad ends lie below the TCP
+        goal = min((target - off for off in offsets), key=lambda g: norm(g - tcp_pos))
+        pad_end = -dot(offsets[0], self._up(i))  # m the pad ends lie below the TCP
         height = clip.base_height + clip.slot_depth + cfg.press_above + pad_end
         return self._at_height(i, goal, height)
 
@@ -589,7 +590,7 @@ class RoutingExpert(ScriptedExpert):
         env = self.envs[i]
         clips = env.task.placed_clips(env.data)
         here = clips[self.clip[i]].to_local(np.array([clips[self.clip[i] - 1].pos]))[0]
-        return float(np.arctan2(abs(here[1]), abs(here[0])))
+        return arctan2(abs(here[1]), abs(here[0]))
 
     def _slot_link_yaw(self, i):
         """Yaw (rad, about up, in the clip's frame) of the piece of centre line that crosses
@@ -613,7 +614,7 @@ class RoutingExpert(ScriptedExpert):
         d = local[k[best] + 1] - local[k[best]]
         if d[0] < 0:
             d = -d
-        return float(np.arctan2(d[1], d[0]))
+        return arctan2(d[1], d[0])
 
     def _link_front(self, i, sign) -> float:
         """Pads' distance past the slot centre for the push.
@@ -655,7 +656,7 @@ class RoutingExpert(ScriptedExpert):
         """Whether the push or press of environment ``i`` has met resistance: the wrist force
         differs from the one before it by more than ``limit`` for ``force_steps`` steps in a
         row (latched until the phase ends)."""
-        rise = np.linalg.norm(self.envs[i].wrist_wrench()[:3] - self.wrench_before[i])
+        rise = norm(self.envs[i].wrist_wrench()[:3] - self.wrench_before[i])
         self.force_steps[i] = self.force_steps[i] + 1 if rise > limit else 0
         if self.force_steps[i] >= self.config.force_steps:
             self.force_stopped[i] = True
@@ -670,7 +671,7 @@ class RoutingExpert(ScriptedExpert):
         crossing = self._wire_across_slot(i)
         wire_top = clip.base_height + (2 * radius if crossing is None else crossing[1] + radius)
         tcp_pos, _ = env.robot.tcp_pose_base(env.model, env.data)
-        pad_end = -np.dot(self._pad_tip_offsets(i)[0], self._up(i))
+        pad_end = -dot(self._pad_tip_offsets(i)[0], self._up(i))
         return self._height(i, tcp_pos) - pad_end - wire_top
 
     def _press_clear_height(self, i):
@@ -678,7 +679,7 @@ class RoutingExpert(ScriptedExpert):
         cfg = self.config
         _, _, clip = self._clip_geometry(i)
         radius = self.envs[i].task.assembly.wire.config.radius
-        pad_end = -np.dot(self._pad_tip_offsets(i)[0], self._up(i))
+        pad_end = -dot(self._pad_tip_offsets(i)[0], self._up(i))
         return clip.base_height + clip.slot_depth + 2 * radius + cfg.press_clearance + pad_end
 
     # -- control -------------------------------------------------------------------------------
@@ -765,7 +766,7 @@ class RoutingExpert(ScriptedExpert):
 
         slot, axis, _ = self._clip_geometry(i)
         direction = fsm.get("direction")[i]
-        sign = 1.0 if np.dot(axis, direction) >= 0 else -1.0
+        sign = 1.0 if dot(axis, direction) >= 0 else -1.0
         lateral = np.cross(up, axis)
         if name in ("pull_back", "push"):
             crossing = self._wire_across_slot(i)
@@ -781,7 +782,7 @@ class RoutingExpert(ScriptedExpert):
                     self.yaw[i] - cfg.yaw_gain * link_yaw, -cfg.max_yaw, cfg.max_yaw
                 )
         if name in ("pull_back", "push", "release", "retreat"):
-            slot_rot = _turn(up, self.yaw[i]) @ slot_rot
+            slot_rot = matmul(_turn(up, self.yaw[i]), slot_rot)
         if name == "pull_back":
             self.front[i] = self._link_front(i, sign)
         front = slot + self.front[i] * sign * axis + self.lateral[i] * lateral
@@ -934,4 +935,4 @@ class RoutingExpert(ScriptedExpert):
 def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
     """Rotation matrix of ``angle`` (rad) about the unit ``axis`` (Rodrigues)."""
     k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * matmul(k, k)

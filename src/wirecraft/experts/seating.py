@@ -125,6 +125,7 @@ from wirecraft.assets.robots.kinematics import axis_angle_to_mats
 from wirecraft.assets.wires import WIRE_MODELS
 from wirecraft.experts.base import TABLE_Z, UP, ScriptedExpert, flat, horizontal
 from wirecraft.experts.fsm import Phase
+from wirecraft.numerics import arctan2, dot, matmul, norm
 from wirecraft.sensors import contact_push
 from wirecraft.tasks.assembly import arc_lengths
 
@@ -447,7 +448,7 @@ class SeatingExpert(ScriptedExpert):
             ]
         )
         tangent = world[-1] - world[-2]
-        world = np.vstack([world, world[-1] + task.plug_lead * tangent / np.linalg.norm(tangent)])
+        world = np.vstack([world, world[-1] + task.plug_lead * tangent / norm(tangent)])
         return world, arc_lengths(world)
 
     def _path_point(self, i, s: float, height: float) -> np.ndarray:
@@ -517,7 +518,7 @@ class SeatingExpert(ScriptedExpert):
         turned_back = not cfg.lay_turn and grasp_rot is not None and name == "carry"
         if turned_back:  # turned for the grasp: the carry turns back to the start orientation
             rot = self._start_rot(i)
-        offset = rot @ tcp_rot.T @ (tcp - self._wire_end(i))
+        offset = matmul(matmul(rot, tcp_rot.T), tcp - self._wire_end(i))
         rot = rot if cfg.lay_turn or turned_back else None
         _, arc = self._path(i)
         lay_start = arc[-1] - cfg.lay_from
@@ -544,7 +545,7 @@ class SeatingExpert(ScriptedExpert):
         if name == "retreat":
             slide = cfg.retreat_slide * fsm.get("slide_dir")[i]
             moved = flat(self._tcp(i)[0] - hold, up)
-            if np.linalg.norm(moved) < 0.8 * np.linalg.norm(slide):  # the rest on the way up
+            if norm(moved) < 0.8 * norm(slide):  # the rest on the way up
                 return hold + slide, None, cfg.descend_speed, released, False
             return hold + cfg.retreat * up + slide, None, cfg.descend_speed, released, None
         if name.startswith("tuck_"):
@@ -573,7 +574,7 @@ class SeatingExpert(ScriptedExpert):
                 # Travel with the pads above the walls (and the released plug beside them);
                 # come down only over the pass's start.
                 tcp_world = env.data.site_xpos[env.task.tcp_site]
-                if np.linalg.norm((target - tcp_world)[:2]) > cfg.press_travel_reach:
+                if norm((target - tcp_world)[:2]) > cfg.press_travel_reach:
                     target[2] = max(target[2], self._wall_top(i) + cfg.press_travel)
                 tcp, rot = self._pad_to_tcp(i, target, self._press_yaw(i, start))
                 return tcp, rot, cfg.approach_speed, opened, None
@@ -585,7 +586,7 @@ class SeatingExpert(ScriptedExpert):
             # chased a goal further ahead would cut the bends into the walls.
             lag = self._pad_target_world(i) - self._press_target(i, self.press_arc[i])
             rigid = env.task.assembly.wire.config.model == "articulated"
-            slow = np.linalg.norm(lag[:2]) > (cfg.press_lag if rigid else cfg.press_lag_flex)
+            slow = norm(lag[:2]) > (cfg.press_lag if rigid else cfg.press_lag_flex)
             done = self._advance_press(i, start, stop, cfg.press_lag_slowdown if slow else 1.0)
             target = self._press_target(i, self.press_arc[i])
             if slow:
@@ -617,14 +618,14 @@ class SeatingExpert(ScriptedExpert):
         if cfg.lay_wall_clearance is None and cfg.lay_table_clearance is None:
             return tcp_goal
         origin, base = self._base(i)
-        goal_world = origin + base @ tcp_goal
+        goal_world = origin + matmul(base, tcp_goal)
         tcp_world = env.data.site_xpos[env.task.tcp_site]
         tcp_rot = env.data.site_xmat[env.task.tcp_site].reshape(3, 3)
         lift = 0.0
         for pad in (0, 1):
             offset, (half_long, half_short), long = self._pad_frame(i, pad)
-            centre = tcp_rot @ offset
-            along = horizontal(tcp_rot @ long, UP)
+            centre = matmul(tcp_rot, offset)
+            along = horizontal(matmul(tcp_rot, long), UP)
             across = np.cross(UP, along)
             # A grid over the bottom face: a 3 mm wall can cross the pad between its corners.
             face = np.array(
@@ -650,7 +651,7 @@ class SeatingExpert(ScriptedExpert):
         env = self.envs[i]
         pads = env.task.pads[0] | env.task.pads[1]
         push = contact_push(env.data, pads, env.task.assembly.wire_contacts)
-        return horizontal(self._base(i)[1].T @ push, self._up(i))
+        return horizontal(matmul(self._base(i)[1].T, push), self._up(i))
 
     def _stalled(self, i, tcp) -> bool | None:
         """True once the TCP has stayed within ``place_stall_distance`` for
@@ -689,7 +690,7 @@ class SeatingExpert(ScriptedExpert):
         """Base-frame TCP orientation: the start one turned by ``yaw`` (rad, counter-clockwise
         seen from above) about the vertical."""
         up = self._up(i)
-        return axis_angle_to_mats((yaw * up)[None])[0] @ self._start_rot(i)
+        return matmul(axis_angle_to_mats((yaw * up)[None])[0], self._start_rot(i))
 
     def _pad_frame(self, i, pad: int = 0):
         """The pressing pad (``pad``: the first of ``robot.pad_geom_names`` by default) in the
@@ -706,21 +707,21 @@ class SeatingExpert(ScriptedExpert):
         bottom = data.geom_xpos[gid] - size[2] * UP
         long = int(np.argmax(size[:2]))
         halves = (float(size[long]), float(size[1 - long]))
-        return tcp_rot.T @ (bottom - tcp_world), halves, tcp_rot.T @ pad_rot[:, long]
+        return matmul(tcp_rot.T, bottom - tcp_world), halves, matmul(tcp_rot.T, pad_rot[:, long])
 
     def _pad_target_world(self, i, pad: int = 0) -> np.ndarray:
         """World centre of the pressing pad's (``pad``'s) bottom face now."""
         env = self.envs[i]
         offset, _, _ = self._pad_frame(i, pad)
         tcp_rot = env.data.site_xmat[env.task.tcp_site].reshape(3, 3)
-        return env.data.site_xpos[env.task.tcp_site] + tcp_rot @ offset
+        return env.data.site_xpos[env.task.tcp_site] + matmul(tcp_rot, offset)
 
     def _pad_to_tcp(self, i, pad_target_world, yaw: float):
         """Base-frame TCP goal position and orientation (turned by ``yaw``) that bring the
         pressing pad's bottom centre to a world point."""
         rot = self._yawed(i, yaw)
         offset, _, _ = self._pad_frame(i)
-        tcp_world = pad_target_world - self._base(i)[1] @ rot @ offset
+        tcp_world = pad_target_world - matmul(matmul(self._base(i)[1], rot), offset)
         return self._to_base(i, tcp_world), rot
 
     def _pad_to_tcp_now(self, i, pad_target_world, pad: int = 0) -> np.ndarray:
@@ -773,7 +774,7 @@ class SeatingExpert(ScriptedExpert):
         ``headings`` (K,): the side has no front, so at most 90 deg either way, continuous
         along the sequence."""
         _, _, long_tcp = self._pad_frame(i)
-        start_long = self._base(i)[1] @ self._start_rot(i) @ long_tcp
+        start_long = matmul(matmul(self._base(i)[1], self._start_rot(i)), long_tcp)
         start_heading = math.atan2(start_long[1], start_long[0])
         return np.unwrap((headings - start_heading + np.pi / 2) % np.pi - np.pi / 2, period=np.pi)
 
@@ -803,10 +804,10 @@ class SeatingExpert(ScriptedExpert):
         channel = task.placed.config
         world, arc = self._path(i)
         step = np.diff(world[:, :2], axis=0)
-        heading = np.arctan2(step[:, 1], step[:, 0])
+        heading = arctan2(step[:, 1], step[:, 0])
         heading = np.append(heading, heading[-1])
         _, (half_long, half_short), long_tcp = self._pad_frame(i)
-        start_long = self._base(i)[1] @ self._start_rot(i) @ long_tcp
+        start_long = matmul(matmul(self._base(i)[1], self._start_rot(i)), long_tcp)
         start_heading = math.atan2(start_long[1], start_long[0])
         turn = self._pad_turns(i, heading)
         # Dead band along the pass's first direction (entry to end): the yaw only follows
@@ -884,7 +885,7 @@ class SeatingExpert(ScriptedExpert):
     @staticmethod
     def _nearest_path_index(path: np.ndarray, points: np.ndarray) -> np.ndarray:
         """(K,) index of the path point nearest (horizontally) to each of ``points`` (K, 3)."""
-        return np.linalg.norm(points[:, None, :2] - path[None, :, :2], axis=2).argmin(1)
+        return norm(points[:, None, :2] - path[None, :, :2], axis=2).argmin(1)
 
     def _needs_tuck(self, i) -> bool:
         """Whether an inner wire point over the board beside the channel lies more than
@@ -909,7 +910,7 @@ class SeatingExpert(ScriptedExpert):
         end = arc[-1] - task.plug_lead - cfg.press_stop
         nearest = self._nearest_path_index(path, world)
         offset = world[:, :2] - path[nearest, :2]
-        distance = np.linalg.norm(offset, axis=1)
+        distance = norm(offset, axis=1)
         push_z = self._wall_top(i) + cfg.press_clearance
         radius = task.assembly.wire.config.radius
         half_width = task.placed.config.inner_width / 2
@@ -930,7 +931,7 @@ class SeatingExpert(ScriptedExpert):
         # comes down farther out, and the wire never lies between the open pads (it was caught
         # there and lifted into a hairpin).
         tcp = env.data.site_xpos[task.tcp_site][:2]
-        inward = [-(pad[:2] - tcp) @ side for pad in pads]
+        inward = [-dot(pad[:2] - tcp, side) for pad in pads]
         self.tuck_pad[i] = int(np.argmax(inward))
         _, (_, half_short), _ = self._pad_frame(i, int(self.tuck_pad[i]))
         reach = distance[k] + radius + half_short + cfg.tuck_margin
@@ -949,7 +950,7 @@ class SeatingExpert(ScriptedExpert):
         world = env.wire_points()[1:-1]
         points = placed.to_local(world)
         start, heading = placed.config.segment_frames()[-1]
-        along = (points[:, :2] - start) @ np.array([math.cos(heading), math.sin(heading)])
+        along = dot(points[:, :2] - start, np.array([math.cos(heading), math.sin(heading)]))
         short = along < placed.config.segment_length
         rest = placed.config.floor + env.task.assembly.wire.config.radius
         raised = short & (points[:, 2] > rest + self.config.press_needed)
