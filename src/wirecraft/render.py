@@ -35,6 +35,12 @@ class FastRenderer:
     """``mujoco.Renderer`` with shadows and reflections switched off after each scene update."""
 
     def __init__(self, model: mujoco.MjModel, height: int = 224, width: int = 224) -> None:
+        limit = model.vis.global_.offwidth, model.vis.global_.offheight
+        if not (0 < width <= limit[0] and 0 < height <= limit[1]):
+            raise ValueError(
+                f"FastRenderer: a {width} x {height} image does not fit the model's off-screen "
+                f"framebuffer of {limit[0]} x {limit[1]} (model.vis.global_.offwidth/offheight)"
+            )
         model.vis.quality.offsamples = 0
         # What a camera sees: no site markers (TCP, plug tip...), which only help debugging.
         self._option = mujoco.MjvOption()

@@ -12,6 +12,8 @@ import mujoco
 from wirecraft import physics
 
 TABLE_HALF = (0.6, 0.8, 0.02)  # m: a 1.2 x 1.6 m top, 4 cm thick, its top face at z = 0
+# MuJoCo's off-screen framebuffer (pixels): no rendered image can be larger.
+OFFSCREEN_WIDTH, OFFSCREEN_HEIGHT = 1280, 960
 
 
 def new_spec(name: str = "wirecraft", *, timestep: float = physics.TIMESTEP) -> mujoco.MjSpec:
@@ -19,8 +21,8 @@ def new_spec(name: str = "wirecraft", *, timestep: float = physics.TIMESTEP) -> 
     spec.modelname = name
     spec.compiler.degree = False  # SI throughout: MjSpec would otherwise read angles in degrees
     physics.configure_options(spec, timestep=timestep)
-    spec.visual.global_.offwidth = 1280
-    spec.visual.global_.offheight = 960
+    spec.visual.global_.offwidth = OFFSCREEN_WIDTH
+    spec.visual.global_.offheight = OFFSCREEN_HEIGHT
     spec.visual.quality.shadowsize = 0
     spec.visual.quality.offsamples = 0
     spec.worldbody.add_light(name="key", pos=(0.3, -0.5, 1.5), dir=(-0.2, 0.4, -1.0))

@@ -3,16 +3,23 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
 
-def finite(owner: str, field: str, value: float) -> float:
+def number(owner: str, field: str, value: float) -> float:
+    """``value`` as a float: strings and booleans are not numbers."""
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"{owner}.{field} must be a number, got {value!r}")
     try:
-        value = float(value)
+        return float(value)
     except (TypeError, ValueError):
         raise ValueError(f"{owner}.{field} must be a number, got {value!r}") from None
+
+
+def finite(owner: str, field: str, value: float) -> float:
+    value = number(owner, field, value)
     if not math.isfinite(value):
         raise ValueError(f"{owner}.{field} must be finite, got {value!r}")
     return value
@@ -42,12 +49,29 @@ def in_range(
     return value
 
 
-def at_least_int(owner: str, field: str, value: int, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
+def integer(owner: str, field: str, value: int) -> int:
+    """``value`` as an int: a bool or a float (even 2.0) is not an integer."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
         raise ValueError(f"{owner}.{field} must be an integer, got {value!r}")
+    return int(value)
+
+
+def at_least_int(owner: str, field: str, value: int, low: int) -> int:
+    value = integer(owner, field, value)
     if value < low:
         raise ValueError(f"{owner}.{field} must be >= {low}, got {value!r}")
     return value
+
+
+def int_in_range(owner: str, field: str, value: int, low: int, high: int, why: str = "") -> int:
+    if (
+        isinstance(value, (bool, np.bool_))
+        or not isinstance(value, (int, np.integer))
+        or not low <= value <= high
+    ):
+        why = f" ({why})" if why else ""
+        raise ValueError(f"{owner}.{field} must be an integer in {low}..{high}{why}, got {value!r}")
+    return int(value)
 
 
 def boolean(owner: str, field: str, value: object) -> bool:
@@ -64,6 +88,12 @@ def one_of(owner: str, field: str, value: object, allowed: Iterable[object]) -> 
             f"{owner}.{field} must be one of {', '.join(map(repr, allowed))}; got {value!r}"
         )
     return value
+
+
+def mapping(owner: str, field: str, value: object) -> dict:
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{owner}.{field} must be a dict, got {value!r}")
+    return dict(value)
 
 
 def rgba(owner: str, field: str, value: Iterable[float]) -> tuple[float, float, float, float]:
