@@ -8,6 +8,11 @@ Divergence: after every control step the state is checked (finite; linear and an
 below ``MAX_LINEAR_SPEED`` and ``MAX_ANGULAR_SPEED``); a diverged step is rolled back to the
 state before it, the episode ends with ``truncated=True`` and ``info["diverged"] = True``, and
 observations never contain NaN.
+
+Call order: ``step`` raises ``gymnasium.error.ResetNeeded`` before the first ``reset`` and after
+an episode ended (terminated or truncated), ``step`` and ``reset`` raise
+``gymnasium.error.ClosedEnvironmentError`` after ``close``.  Bad arguments raise ValueError
+naming the field.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from wirecraft import validation
 from wirecraft.assets.robots import ROBOTS, add_robot
 from wirecraft.assets.wires import WIRE_MODELS, WireConfig
 from wirecraft.control import CONTROLLERS, ControlConfig, make_controller
-from wirecraft.scene import add_table, compile_spec, new_spec
+from wirecraft.scene import OFFSCREEN_HEIGHT, OFFSCREEN_WIDTH, add_table, compile_spec, new_spec
 from wirecraft.tasks import TASKS
 from wirecraft.tasks.base import weighted_reward
 
@@ -40,6 +45,27 @@ MAX_ANGULAR_SPEED = 2000.0  # rad/s
 STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 RESET_ATTEMPTS = 3
 INSTRUCTION_LENGTH = 200  # characters
+MAX_IMAGE_SIZE = min(OFFSCREEN_WIDTH, OFFSCREEN_HEIGHT)  # square images in the framebuffer
+
+
+def check_seed(owner: str, seed) -> int | None:
+    if seed is None:
+        return None
+    seed = validation.integer(owner, "seed", seed)
+    if seed < 0:
+        raise ValueError(f"{owner}.seed must be None or an integer >= 0, got {seed!r}")
+    return seed
+
+
+def check_options(owner: str, options, allowed: tuple[str, ...] = ()) -> dict:
+    if options is None:
+        return {}
+    options = validation.mapping(owner, "options", options)
+    unknown = [key for key in options if key not in allowed]
+    if unknown:
+        valid = ", ".join(allowed) if allowed else "none"
+        raise ValueError(f"{owner}: unknown reset option(s) {unknown}; valid: {valid}")
+    return options
 
 
 def _add_wrist_sensor(spec: mujoco.MjSpec, hand_body: str) -> None:
@@ -108,14 +134,30 @@ class WireCraftEnv(gym.Env):
         task_cls = TASKS.get(task)
         ROBOTS.get(robot)
         WIRE_MODELS.get(wire)
-        control = control or task_cls.default_control
+        control = task_cls.default_control if control is None else control
         CONTROLLERS.get(control)
         validation.one_of("WireCraftEnv", "obs_mode", obs_mode, OBS_MODES)
         validation.one_of("WireCraftEnv", "render_mode", render_mode, RENDER_MODES)
-        validation.at_least_int("WireCraftEnv", "image_size", image_size, 16)
+        validation.int_in_range(
+            "WireCraftEnv",
+            "image_size",
+            image_size,
+            16,
+            MAX_IMAGE_SIZE,
+            f"MuJoCo's off-screen framebuffer is {OFFSCREEN_WIDTH} x {OFFSCREEN_HEIGHT}",
+        )
         validation.boolean("WireCraftEnv", "diagnostics", diagnostics)
         if episode_seconds is not None:
-            validation.positive("WireCraftEnv", "episode_seconds", episode_seconds)
+            validation.finite("WireCraftEnv", "episode_seconds", episode_seconds)
+            if round(episode_seconds * CONTROL_HZ) < 1:
+                raise ValueError(
+                    f"WireCraftEnv.episode_seconds must be at least one control step "
+                    f"(1/{CONTROL_HZ} s), got {episode_seconds!r}"
+                )
+        if wire_config is not None and not isinstance(wire_config, WireConfig):
+            raise ValueError(
+                f"WireCraftEnv.wire_config must be a WireConfig or None, got {wire_config!r}"
+            )
         try:
             self.task = task_cls(**task_kwargs)
         except TypeError as err:
@@ -150,6 +192,8 @@ class WireCraftEnv(gym.Env):
         self._viewer = None
         self._steps = 0
         self._last_obs = None
+        self._needs_reset = True
+        self._closed = False
 
         self.action_space = gym.spaces.Box(-1.0, 1.0, (self.controller.action_dim,), np.float32)
         self.observation_space = self._make_observation_space()
@@ -184,6 +228,8 @@ class WireCraftEnv(gym.Env):
 
     # -- gymnasium API ----------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self.check_open("reset")
+        check_options("WireCraftEnv.reset", options)
         self.seed_episode(seed)
         # Later attempts continue the same seeded stream: still deterministic.
         attempt = 1
@@ -200,7 +246,7 @@ class WireCraftEnv(gym.Env):
     # (settle_action, settle_steps), finish_reset.
     def seed_episode(self, seed: int | None) -> None:
         """gymnasium's reset bookkeeping: reseed the generator where ``seed`` is given."""
-        super().reset(seed=seed)
+        super().reset(seed=check_seed("WireCraftEnv.reset", seed))
 
     def start_episode(self) -> None:
         """Sample a new episode from this environment's generator: the scene before settling."""
@@ -248,6 +294,7 @@ class WireCraftEnv(gym.Env):
         mujoco.mj_forward(model, data)
         self.task.after_settle(model, data)
         self._steps = 0
+        self._needs_reset = False
         obs = self._observe()
         info = {
             "instruction": self.task.instruction,
@@ -267,7 +314,18 @@ class WireCraftEnv(gym.Env):
     def begin_step(self, action) -> dict:
         """Validate ``action``, snapshot the state, write the servo targets; returns the
         snapshot (for a roll-back if the physics diverges)."""
-        action = np.asarray(action, dtype=float)
+        self.check_open("step")
+        if self._needs_reset:
+            raise gym.error.ResetNeeded(
+                "WireCraftEnv.step: call reset() first (before the first episode, and after "
+                "an episode ended with terminated or truncated)"
+            )
+        try:
+            action = np.asarray(action, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"action must be numbers of shape {self.action_space.shape}, got {action!r}"
+            ) from None
         if action.shape != self.action_space.shape:
             raise ValueError(
                 f"action must have shape {self.action_space.shape}, got {action.shape}"
@@ -290,6 +348,7 @@ class WireCraftEnv(gym.Env):
         self._steps += 1
         if failed or not self._healthy():
             self.set_state(before)
+            self._needs_reset = True
             info = {**self._info_without_reward(), "diverged": True}
             return self._observe(), 0.0, False, True, info
         self.task.after_step(model, data)
@@ -303,6 +362,7 @@ class WireCraftEnv(gym.Env):
             **{f"reward/{k}": float(v) for k, v in weighted.items()},
         }
         truncated = self._steps >= self.max_steps
+        self._needs_reset = truncated
         obs = self._observe()
         if self.render_mode == "human":
             self.render()
@@ -326,6 +386,7 @@ class WireCraftEnv(gym.Env):
         other._np_random = None
         other._np_random_seed = None
         other._steps = 0
+        other._needs_reset = True
         return other
 
     def _info_without_reward(self) -> dict:
@@ -378,7 +439,14 @@ class WireCraftEnv(gym.Env):
             self._viewer.sync()
         return None
 
+    def check_open(self, call: str) -> None:
+        if self._closed:
+            raise gym.error.ClosedEnvironmentError(
+                f"WireCraftEnv.{call}: the environment is closed; make a new one"
+            )
+
     def close(self):
+        self._closed = True
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
@@ -411,6 +479,7 @@ class WireCraftEnv(gym.Env):
             setattr(self.controller, key, value.copy() if isinstance(value, np.ndarray) else value)
         self.task.set_state(state["task"])
         self._steps = state["steps"]
+        self._needs_reset = False
         mujoco.mj_forward(self.model, self.data)
 
     def wrist_wrench(self) -> np.ndarray:

@@ -27,10 +27,14 @@ Autoreset: gymnasium's SAME_STEP mode.  An environment whose episode ends (time 
 divergence) is reset within the same ``step``; its last observation and info are in
 ``infos["final_obs"]`` / ``infos["final_info"]``, masked by ``infos["_final_obs"]``.  A
 diverged environment is rolled back, flagged (``diverged``) and reset while the others go on.
+``step`` before every environment was reset raises ``gymnasium.error.ResetNeeded``.
 """
 
 from __future__ import annotations
 
+import os
+
+import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv, VectorWrapper
@@ -39,12 +43,28 @@ from mujoco.batch import Batch, SimulationError
 
 from wirecraft import validation
 from wirecraft.control import ControlState
-from wirecraft.envs.env import STATE_SPEC, SUBSTEPS, WireCraftEnv, within_limits
+from wirecraft.envs.env import (
+    STATE_SPEC,
+    SUBSTEPS,
+    WireCraftEnv,
+    check_options,
+    check_seed,
+    within_limits,
+)
 from wirecraft.tasks.base import weighted_reward
 from wirecraft.tasks.frame import Frame
 
 ACC = mujoco.mjtStage.mjSTAGE_ACC.value
 VEL = mujoco.mjtStage.mjSTAGE_VEL.value
+MAX_NUM_ENVS = 65536
+# Resident memory of one environment (its MjData, the batch's, Python objects), an upper
+# bound of what was measured: 1.7 MiB (articulated wire), 3.6 MiB (fem).
+ENV_BYTES = 2**20
+ENV_BYTES_PER_DATA_BYTE = 8
+
+
+def physical_memory() -> int:
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
 def env_seed(seed: int, index: int) -> int:
@@ -64,14 +84,21 @@ class WireCraftVectorEnv(VectorEnv):
         sync_envs: bool = True,
         **kwargs,
     ) -> None:
-        validation.at_least_int("make_vec", "num_envs", num_envs, 1)
-        validation.at_least_int("make_vec", "threads", threads, 0)
+        validation.int_in_range("make_vec", "num_envs", num_envs, 1, MAX_NUM_ENVS)
+        cpus = os.cpu_count() or 1
+        validation.int_in_range("make_vec", "threads", threads, 0, cpus, f"0: all {cpus} CPUs")
         validation.boolean("make_vec", "sync_envs", sync_envs)
         if batched is not None:
             validation.boolean("make_vec", "batched", batched)
         if kwargs.get("render_mode") == "human":
             raise ValueError("make_vec: render_mode='human' is for single environments")
         first = WireCraftEnv(task, **kwargs)
+        needed = num_envs * (ENV_BYTES + ENV_BYTES_PER_DATA_BYTE * first.data.nbuffer)
+        if needed > physical_memory():
+            raise ValueError(
+                f"make_vec: num_envs={num_envs} needs about {needed / 2**30:.1f} GiB, more than "
+                f"this machine's {physical_memory() / 2**30:.1f} GiB of memory"
+            )
         self.envs = [first] + [first.clone() for _ in range(num_envs - 1)]
         self.model = first.model
         self.num_envs = num_envs
@@ -89,6 +116,7 @@ class WireCraftVectorEnv(VectorEnv):
         self.metadata = {**first.metadata, "autoreset_mode": AutoresetMode.SAME_STEP}
         self.render_mode = first.render_mode
         self._obs = create_empty_array(self.single_observation_space, num_envs)
+        self._needs_reset = np.ones(num_envs, bool)
         if isinstance(self._obs, dict):  # text (the instruction) batches as a tuple: fill a list
             self._obs = {k: list(v) if isinstance(v, tuple) else v for k, v in self._obs.items()}
         possible = first.task.batched and first.obs_mode == "state"
@@ -118,11 +146,16 @@ class WireCraftVectorEnv(VectorEnv):
 
     # -- gymnasium vector API ---------------------------------------------------------------
     def reset(self, *, seed=None, options: dict | None = None):
+        self._check_open("reset")
+        options = check_options("WireCraftVectorEnv.reset", options, ("reset_mask",))
         mask = np.ones(self.num_envs, bool)
-        if options and "reset_mask" in options:
-            mask = np.asarray(options["reset_mask"], bool)
-            if mask.shape != (self.num_envs,):
-                raise ValueError(f"reset_mask must have shape ({self.num_envs},)")
+        if "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"])
+            if mask.dtype != bool or mask.shape != (self.num_envs,):
+                raise ValueError(
+                    f"WireCraftVectorEnv.reset: options['reset_mask'] must be {self.num_envs} "
+                    f"booleans, got {options['reset_mask']!r}"
+                )
         seeds = self._seeds(seed)
         ids = np.flatnonzero(mask)
         infos = {}
@@ -131,10 +164,22 @@ class WireCraftVectorEnv(VectorEnv):
             infos = self._add_info(infos, info, i)
         if self.batched:
             self._load_rows(ids)
+        self._needs_reset[ids] = False
         return self._obs_copy(), infos
 
     def step(self, actions):
-        actions = np.asarray(actions, dtype=float)
+        self._check_open("step")
+        if self._needs_reset.any():
+            raise gym.error.ResetNeeded(
+                "WireCraftVectorEnv.step: call reset() first; environments "
+                f"{np.flatnonzero(self._needs_reset).tolist()} were never reset"
+            )
+        try:
+            actions = np.asarray(actions, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"actions must be numbers of shape {self.action_space.shape}, got {actions!r}"
+            ) from None
         if actions.shape != self.action_space.shape:
             raise ValueError(
                 f"actions must have shape {self.action_space.shape}, got {actions.shape}"
@@ -184,6 +229,7 @@ class WireCraftVectorEnv(VectorEnv):
             if not 0 <= i < self.num_envs:
                 raise ValueError(f"set_states: no environment {i} of {self.num_envs}")
             self.envs[i].set_state(state)
+            self._needs_reset[i] = False
             self._write_obs(i, self.envs[i]._observe())
         if self.batched:
             self._load_rows(ids)
@@ -193,6 +239,12 @@ class WireCraftVectorEnv(VectorEnv):
                 k: [v[i] for i in ids] if isinstance(v, tuple) else v[ids] for k, v in obs.items()
             }
         return obs[ids]
+
+    def _check_open(self, call: str) -> None:
+        if self.closed:
+            raise gym.error.ClosedEnvironmentError(
+                f"WireCraftVectorEnv.{call}: the environment is closed; make a new one"
+            )
 
     def close_extras(self, **kwargs) -> None:
         for env in self.envs:
@@ -402,13 +454,15 @@ class WireCraftVectorEnv(VectorEnv):
         self._ctrl[rows, index.gripper_act] = controls.gripper_target
 
     def _seeds(self, seed) -> list[int | None]:
+        owner = "WireCraftVectorEnv.reset"
         if seed is None:
             return [None] * self.num_envs
-        if isinstance(seed, (int, np.integer)):
+        if not isinstance(seed, (list, tuple, np.ndarray)):
+            seed = check_seed(owner, seed)
             return [env_seed(seed, i) for i in range(self.num_envs)]
-        seeds = list(seed)
+        seeds = [check_seed(owner, s) for s in seed]
         if len(seeds) != self.num_envs:
-            raise ValueError(f"reset: {len(seeds)} seeds for {self.num_envs} environments")
+            raise ValueError(f"{owner}: {len(seeds)} seeds for {self.num_envs} environments")
         return seeds
 
     def _step_physics(self) -> set[int]:
