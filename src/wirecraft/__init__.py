@@ -41,9 +41,9 @@ for _task, _id in TASK_IDS.items():
 
 
 def _resolve(task: str) -> str:
-    if task in TASK_IDS:
+    if isinstance(task, str) and task in TASK_IDS:
         return TASK_IDS[task]
-    if task in TASK_IDS.values():
+    if isinstance(task, str) and task in TASK_IDS.values():
         return task
     valid = ", ".join([*TASK_IDS, *TASK_IDS.values()])
     raise ValueError(f"unknown task {task!r}; valid: {valid}")
@@ -51,7 +51,13 @@ def _resolve(task: str) -> str:
 
 def make(task: str, **kwargs) -> gym.Env:
     """Build a WireCraft environment: ``task`` is insertion, routing, seating or a full id."""
-    return gym.make(_resolve(task), **kwargs)
+    from wirecraft import validation
+    from wirecraft.envs.env import RENDER_MODES
+
+    task_id = _resolve(task)
+    # gym.make reads render_mode before the environment can check it.
+    validation.one_of("WireCraftEnv", "render_mode", kwargs.get("render_mode"), RENDER_MODES)
+    return gym.make(task_id, **kwargs)
 
 
 BACKENDS = ("cpu",)
@@ -84,6 +90,8 @@ def make_vec(
         )
     if arrays not in ARRAY_TYPES:
         raise ValueError(f"unknown arrays {arrays!r}; valid: {', '.join(ARRAY_TYPES)}")
+    if device is not None and arrays != "torch":
+        raise ValueError(f"make_vec: device={device!r} is for arrays='torch' only")
     name = next(k for k, v in TASK_IDS.items() if v == _resolve(task))
     env = WireCraftVectorEnv(name, num_envs, threads=threads, **kwargs)
     if arrays == "torch":

@@ -38,6 +38,7 @@ from typing import ClassVar
 import mujoco
 import numpy as np
 
+from wirecraft import validation
 from wirecraft.assets.robots import RobotHandle
 from wirecraft.assets.wires import WireConfig
 from wirecraft.registry import Registry
@@ -110,12 +111,14 @@ class Task(ABC):
 
     def __init__(self, weights: dict[str, float] | None = None) -> None:
         self.weights = dict(self.default_weights)
-        for key, value in (weights or {}).items():
+        weights = {} if weights is None else validation.mapping(self.name, "weights", weights)
+        for key, value in weights.items():
             if key not in self.weights:
                 raise ValueError(
-                    f"{self.name}: unknown reward term {key!r}; valid: {', '.join(self.weights)}"
+                    f"{self.name}.weights: unknown reward term {key!r}; "
+                    f"valid: {', '.join(self.weights)}"
                 )
-            self.weights[key] = float(value)
+            self.weights[key] = validation.finite(self.name, f"weights[{key!r}]", value)
         self.robot: RobotHandle | None = None
 
     @property

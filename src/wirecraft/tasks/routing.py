@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wirecraft import validation
 from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ClipConfig, PlacedClip, add_clip
 from wirecraft.assets.robots.kinematics import quat_near
@@ -124,8 +125,9 @@ class RoutingTask(Task):
         weights=None,
     ):
         super().__init__(weights)
-        if num_clips not in LAYOUTS:
-            raise ValueError(f"routing: num_clips must be one of 1, 2, 3; got {num_clips!r}")
+        validation.int_in_range("routing", "num_clips", num_clips, 1, MAX_CLIPS)
+        if clip_opening is not None:
+            validation.positive("routing", "clip_opening", clip_opening)
         self.num_clips = num_clips
         self.layout = LAYOUTS[num_clips]
         self.clip_opening = clip_opening
@@ -148,6 +150,11 @@ class RoutingTask(Task):
         default = diameter - LIP_INTERFERENCE
         opening = self.clip_opening if self.clip_opening is not None else default
         slot = max(ClipConfig().slot_width, diameter + 0.002)
+        if opening > slot:
+            raise ValueError(
+                f"routing.clip_opening must be in (0, {slot}] m (at the clip's slot width, "
+                f"{slot} m for this wire, the clip has no lips), got {opening!r}"
+            )
         self.clip_config = ClipConfig(slot_width=slot, opening=opening)
         self.clip_names = []
         for i in range(self.num_clips):
