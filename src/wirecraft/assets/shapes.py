@@ -17,6 +17,7 @@ import numpy as np
 import trimesh
 
 from wirecraft import physics
+from wirecraft.numerics import norm
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -66,7 +67,7 @@ Shape = Box | Cylinder | Prism
 def quat_about(axis: Sequence[float], angle: float) -> Quat:
     """Quaternion (w, x, y, z) for a rotation of ``angle`` radians about ``axis``."""
     axis = np.asarray(axis, dtype=float)
-    axis = axis / np.linalg.norm(axis)
+    axis = axis / norm(axis)
     s = np.sin(angle / 2.0)
     return (float(np.cos(angle / 2.0)), *(float(a * s) for a in axis))
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from wirecraft import physics, validation
 from wirecraft.assets.shapes import Box, Prism, Quat, Shape, Vec3, add_to_body, quat_about
+from wirecraft.numerics import dot
 from wirecraft.registry import Registry
 
 CONNECTORS: Registry[type[Connector]] = Registry("connector")
@@ -191,7 +192,7 @@ def shape_volume(shape: Shape) -> float:
     if isinstance(shape, Prism):
         yz = np.asarray(shape.profile)
         area = 0.5 * abs(
-            np.dot(yz[:, 0], np.roll(yz[:, 1], -1)) - np.dot(yz[:, 1], np.roll(yz[:, 0], -1))
+            dot(yz[:, 0], np.roll(yz[:, 1], -1)) - dot(yz[:, 1], np.roll(yz[:, 0], -1))
         )
         return area * abs(shape.x1 - shape.x0)
     return float(np.pi * shape.radius**2 * 2.0 * shape.half_length)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from wirecraft.assets.connectors.base import CONNECTORS, TAIL_HALF_LENGTH, WALL, Connector
@@ -34,7 +36,7 @@ class CylinderConnector(Connector):
     def port_shapes(self) -> list[Shape]:
         bore = self.radius + self.clearance  # inscribed radius of the polygonal bore
         depth = self.cavity_depth
-        half_width = (bore + WALL) * np.tan(np.pi / RING_SIDES) + 1e-4  # faces overlap slightly
+        half_width = (bore + WALL) * math.tan(np.pi / RING_SIDES) + 1e-4  # faces overlap slightly
         shapes: list[Shape] = []
         for k in range(RING_SIDES):
             theta = 2 * np.pi * k / RING_SIDES

@@ -19,6 +19,7 @@ import numpy as np
 from wirecraft import physics
 from wirecraft.assets.wires import shape
 from wirecraft.assets.wires.base import ATTACH_SOLIMP, ATTACH_SOLREF, WIRE_MODELS, WireHandle
+from wirecraft.numerics import norm
 
 JOINT_LIMIT = 0.5  # rad, cone half-angle of each ball joint
 ARMATURE = 1e-6  # kg m^2: keeps the capsules' tiny roll inertia stable at 2 ms
@@ -169,7 +170,7 @@ class ArticulatedWire(WireHandle):
         joints = ids["joints"]
         root = model.jnt_qposadr[joints[0]]
         data.qpos[root : root + 3] = nodes[0]
-        data.qpos[root + 3 : root + 7] = frames[0] / np.linalg.norm(frames[0])
+        data.qpos[root + 3 : root + 7] = frames[0] / norm(frames[0])
         for jid, quat in zip(joints[1:], balls, strict=True):
             adr = model.jnt_qposadr[jid]
-            data.qpos[adr : adr + 4] = quat / np.linalg.norm(quat)
+            data.qpos[adr : adr + 4] = quat / norm(quat)

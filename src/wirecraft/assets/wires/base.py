@@ -35,6 +35,7 @@ import numpy as np
 
 from wirecraft import physics, validation
 from wirecraft.assets.wires import shape
+from wirecraft.numerics import dot, norm
 from wirecraft.registry import Registry
 
 Vec3 = tuple[float, float, float]
@@ -190,7 +191,7 @@ class WireHandle(ABC):
         self.name = name
         self.pos = np.asarray(pos, dtype=float).reshape(3)
         q = np.asarray(quat, dtype=float).reshape(4)
-        self.quat = q / np.linalg.norm(q)
+        self.quat = q / norm(q)
         self.attached: dict[str, str] = {}
         self._ids: object | None = None
         self._shape_cache: tuple[mujoco.MjModel, dict[str, np.ndarray]] | None = None
@@ -312,7 +313,7 @@ class WireHandle(ABC):
         for end, node, frame in (("start", nodes[0], frames[0]), ("end", nodes[-1], frames[-1])):
             _, lquat = self.end_pose_local(end)
             quat = _quat_mul(frame, lquat)
-            quat /= np.linalg.norm(quat)
+            quat /= norm(quat)
             # the body's +x points away from the wire: the gap lies along it
             poses[end] = (node + self.end_gap * _rotate(quat, np.array([1.0, 0.0, 0.0])), quat)
         return poses
@@ -467,7 +468,7 @@ def set_slide_bodies(
             ):
                 raise ValueError(f"body {model.body(body).name!r}: expected slide joints at 0")
             axis = _rotate(quat, model.jnt_axis[j])
-            data.qpos[model.jnt_qposadr[j]] = float(axis @ (target - origin))
+            data.qpos[model.jnt_qposadr[j]] = dot(axis, target - origin)
 
 
 def add_wire(

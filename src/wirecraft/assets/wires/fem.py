@@ -39,6 +39,7 @@ from wirecraft.assets.wires.base import (
     WireHandle,
     set_slide_bodies,
 )
+from wirecraft.numerics import matvec, norm
 
 
 def _square_side(radius: float) -> float:
@@ -168,7 +169,7 @@ class FemWire(WireHandle):
         for i in range(1, len(frames)):
             prev = shape.quat_rotate(frames[i - 1], x_axis)
             mean = prev + shape.quat_rotate(frames[i], x_axis)
-            turn = shape.min_rotation(prev, mean / np.linalg.norm(mean), x_axis)
+            turn = shape.min_rotation(prev, mean / norm(mean), x_axis)
             section.append(shape.quat_mul(turn, frames[i - 1]))
         section.append(frames[-1])
         targets = np.empty((len(nodes), 2, 2, 3))
@@ -176,7 +177,7 @@ class FemWire(WireHandle):
             rot = shape.quat_matrix(quat)
             for j in range(2):
                 for k in range(2):
-                    targets[i, j, k] = centre + rot @ np.array(
-                        [0.0, (2 * j - 1) * h, (2 * k - 1) * h]
+                    targets[i, j, k] = centre + matvec(
+                        rot, np.array([0.0, (2 * j - 1) * h, (2 * k - 1) * h])
                     )
         set_slide_bodies(model, data, ids["bodies"], targets.reshape(-1, 3))

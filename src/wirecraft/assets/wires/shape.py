@@ -23,6 +23,8 @@ import math
 import mujoco
 import numpy as np
 
+from wirecraft.numerics import dot, norm
+
 _EPS = 1e-12
 
 
@@ -52,12 +54,12 @@ def quat_matrix(q: np.ndarray) -> np.ndarray:
 def quat_angle(q: np.ndarray) -> float:
     """Rotation angle (rad, in [0, pi]) of a unit quaternion."""
     q = np.asarray(q, float)
-    return 2.0 * math.atan2(float(np.linalg.norm(q[1:])), abs(float(q[0])))
+    return 2.0 * math.atan2(norm(q[1:]), abs(float(q[0])))
 
 
 def axis_angle_quat(axis: np.ndarray, angle: float) -> np.ndarray:
     axis = np.asarray(axis, float)
-    axis = axis / np.linalg.norm(axis)
+    axis = axis / norm(axis)
     return np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * axis])
 
 
@@ -70,8 +72,8 @@ def min_rotation(a: np.ndarray, b: np.ndarray, fallback_axis: np.ndarray) -> np.
     a = np.asarray(a, float)
     b = np.asarray(b, float)
     cross = np.cross(a, b)
-    sin = float(np.linalg.norm(cross))
-    cos = float(np.dot(a, b))
+    sin = norm(cross)
+    cos = dot(a, b)
     if sin < _EPS:
         if cos > 0:
             return np.array([1.0, 0.0, 0.0, 0.0])
@@ -88,7 +90,7 @@ def clean_polyline(points: np.ndarray) -> np.ndarray:
         raise ValueError("polyline has non-finite points")
     keep = [0]
     for i in range(1, len(pts)):
-        if np.linalg.norm(pts[i] - pts[keep[-1]]) > _EPS:
+        if norm(pts[i] - pts[keep[-1]]) > _EPS:
             keep.append(i)
     if len(keep) < 2:
         raise ValueError("polyline needs at least two distinct points")
@@ -98,7 +100,7 @@ def clean_polyline(points: np.ndarray) -> np.ndarray:
 def extend_polyline(points: np.ndarray, extra: float) -> np.ndarray:
     """Append a point ``extra`` metres beyond the end, along the last segment's direction."""
     tangent = points[-1] - points[-2]
-    tangent = tangent / np.linalg.norm(tangent)
+    tangent = tangent / norm(tangent)
     return np.vstack([points, points[-1] + extra * tangent])
 
 
@@ -108,7 +110,7 @@ def resample_polyline(points: np.ndarray, count: int, length: float) -> np.ndarr
     A polyline shorter than ``length`` is extended straight along its last segment.
     """
     pts = extend_polyline(clean_polyline(points), length)
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    seg = norm(np.diff(pts, axis=0), axis=1)
     cum = np.concatenate([[0.0], np.cumsum(seg)])
     out = np.empty((count, 3))
     for j, s in enumerate(np.linspace(0.0, length, count)):
@@ -125,8 +127,8 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray
     d = b - a
     out = []
     for p in np.asarray(points, float).reshape(-1, 3):
-        u = np.clip(np.einsum("ij,ij->i", p - a, d) / np.einsum("ij,ij->i", d, d), 0.0, 1.0)
-        out.append(np.min(np.linalg.norm(a + u[:, None] * d - p, axis=1)))
+        u = np.clip(dot(p - a, d) / dot(d, d), 0.0, 1.0)
+        out.append(np.min(norm(a + u[:, None] * d - p, axis=1)))
     return np.asarray(out)
 
 
@@ -147,9 +149,9 @@ def chord_walk(points: np.ndarray, step: float, count: int) -> np.ndarray:
             a = pts[seg_index]
             d = pts[seg_index + 1] - a
             rel = a - centre
-            qa = float(d @ d)
-            qb = 2.0 * float(d @ rel)
-            qc = float(rel @ rel) - step * step
+            qa = dot(d, d)
+            qb = 2.0 * dot(d, rel)
+            qc = dot(rel, rel) - step * step
             disc = max(qb * qb - 4.0 * qa * qc, 0.0)
             u = (-qb + math.sqrt(disc)) / (2.0 * qa)  # the exit from the sphere, going forward
             if u_now <= u <= 1.0 or seg_index == len(pts) - 2:
@@ -158,7 +160,7 @@ def chord_walk(points: np.ndarray, step: float, count: int) -> np.ndarray:
         # snap the node to exactly ``step`` from the previous one (removes rounding)
         node = a + u * d
         offset = node - centre
-        nodes[k] = centre + offset * (step / np.linalg.norm(offset))
+        nodes[k] = centre + offset * (step / norm(offset))
         u_now = u
     return nodes
 
@@ -175,14 +177,14 @@ def transport_frames(
     about its own x axis.
     """
     chords = np.diff(nodes, axis=0)
-    tangents = chords / np.linalg.norm(chords, axis=1, keepdims=True)
+    tangents = chords / norm(chords, axis=1, keepdims=True)
     frames = np.empty((len(tangents), 4))
     quat = np.asarray(start_quat, float)
     axis = np.asarray(start_axis, float)
     fallback = quat_rotate(quat, np.array([0.0, 0.0, 1.0]))
     for k, t in enumerate(tangents):
         quat = quat_mul(min_rotation(axis, t, fallback), quat)
-        quat = quat / np.linalg.norm(quat)
+        quat = quat / norm(quat)
         axis = quat_rotate(quat, np.array([1.0, 0.0, 0.0]))
         fallback = quat_rotate(quat, np.array([0.0, 0.0, 1.0]))
         frames[k] = quat
