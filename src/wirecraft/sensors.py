@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from wirecraft.numerics import matmul
+
 
 @dataclass(frozen=True)
 class Contacts:
@@ -124,7 +126,7 @@ def contact_push(data, a: Contacts, b: Contacts | None) -> np.ndarray:
     hits = _between(data, a, b)
     # MuJoCo's contact normal points from the contact's side 0 to its side 1.
     sign = np.where(a.mask(data, 1)[hits], 1.0, -1.0)
-    return sign @ data.contact.frame[hits, :3] if hits.size else np.zeros(3)
+    return matmul(sign, data.contact.frame[hits, :3]) if hits.size else np.zeros(3)
 
 
 def touching(model, data, a: Contacts, b: Contacts | None) -> bool:

@@ -52,6 +52,8 @@ from lerobot.datasets.compute_stats import DEFAULT_QUANTILES
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.datasets.video_utils import StreamingVideoEncoder
 
+from wirecraft.numerics import matvec
+
 LEVELS = 256  # uint8 intensity levels
 
 
@@ -87,8 +89,8 @@ class ChannelLevelCounts:
             raise ValueError("no pixels counted")
         levels = np.arange(LEVELS, dtype=np.float64)
         present = self.counts > 0
-        mean = self.counts @ levels / total
-        mean_of_squares = self.counts @ (levels**2) / total
+        mean = matvec(self.counts, levels) / total
+        mean_of_squares = matvec(self.counts, levels**2) / total
         cumulative = np.cumsum(self.counts, axis=1)
         stats = {
             "min": np.argmax(present, axis=1).astype(np.float64),

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wirecraft.numerics import norm
 from wirecraft.sensors import contact_normal_force
 from wirecraft.tasks.insertion import LATERAL_TOLERANCE, ROLL_GATE
 
@@ -154,14 +155,14 @@ def measure(env, info: dict) -> dict[str, float]:
             yaw_error=float(info["yaw_error"]),
             roll_error=float(info["roll_error"]),
             insertion_force=float(info["insertion_force"]),
-            tip_distance=float(np.linalg.norm(tip - data.site_xpos[task.entry_site])),
+            tip_distance=norm(tip - data.site_xpos[task.entry_site]),
             reach=float(info["reach_success"]),
         )
     elif name == "routing":
         routed = task.routed(model, data)
         tcp = data.site_xpos[task.tcp_site]
         pending = [
-            float(np.linalg.norm((np.asarray(clip.pos) - tcp)[:2]))
+            norm((np.asarray(clip.pos) - tcp)[:2])
             for clip, done in zip(task.placed_clips(data), routed, strict=True)
             if not done
         ]

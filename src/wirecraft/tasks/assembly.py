@@ -23,6 +23,7 @@ from wirecraft import physics
 from wirecraft.assets.connectors import Connector, add_plug
 from wirecraft.assets.shapes import Box, add_to_body, quat_about
 from wirecraft.assets.wires import WireConfig, WireHandle, add_wire, end_gap
+from wirecraft.numerics import arccos, dot, norm
 from wirecraft.sensors import Contacts, body_geom_ids, flex_ids, quat_to_mat
 
 CLAMP_HALF = (0.02, 0.015, 0.012)  # m
@@ -137,7 +138,7 @@ class WireAssembly:
         whole assembly is lifted until it clears it by ``TABLE_CLEARANCE``; returns the plug
         position used.
         """
-        direction = np.asarray(direction, float) / np.linalg.norm(direction)
+        direction = np.asarray(direction, float) / norm(direction)
         plug_pos = np.asarray(plug_pos, float)
         self._lay(model, data, plug_pos, direction, roll)
         lift = TABLE_CLEARANCE - self.lowest_point(model, data)
@@ -154,8 +155,8 @@ class WireAssembly:
         natural = quat_to_mat(self.wire.set_centerline(model, data, line)["end"][1])
         wanted = rotation_from_axis(direction, roll)
         offset = math.atan2(
-            float(np.dot(np.cross(natural[:, 1], wanted[:, 1]), direction)),
-            float(np.dot(natural[:, 1], wanted[:, 1])),
+            dot(np.cross(natural[:, 1], wanted[:, 1]), direction),
+            dot(natural[:, 1], wanted[:, 1]),
         )
         ends = self.wire.set_centerline(model, data, line, roll=offset)
         self._put_ends(model, data, ends)
@@ -182,20 +183,20 @@ class WireAssembly:
         points = np.asarray(points, float).copy()
         # the wire starts end_gap out of the clamp (wires/base.py), along the first segment
         lead = points[1] - points[0]
-        if np.linalg.norm(lead) <= self.wire.end_gap:
+        if norm(lead) <= self.wire.end_gap:
             raise ValueError("lay_from_clamp: the first segment must be longer than the end gap")
-        points[0] += self.wire.end_gap * lead / np.linalg.norm(lead)
+        points[0] += self.wire.end_gap * lead / norm(lead)
         # set_centerline's roll is relative to its own transported frame; roll the wire so its
         # start frame is the clamp's (the weld holds it there).
         clamp = quat_to_mat(model.body_quat[model.body(self.clamp).id])
         natural = quat_to_mat(self.wire.set_centerline(model, data, points)["start"][1])
         offset = math.atan2(
-            float(np.dot(np.cross(natural[:, 1], clamp[:, 1]), natural[:, 0])),
-            float(np.dot(natural[:, 1], clamp[:, 1])),
+            dot(np.cross(natural[:, 1], clamp[:, 1]), natural[:, 0]),
+            dot(natural[:, 1], clamp[:, 1]),
         )
         for sign in (-1.0, 1.0):  # the start frame's x is minus the tangent the roll turns about
             ends = self.wire.set_centerline(model, data, points, roll=sign * offset)
-            if sign > 0 or np.dot(quat_to_mat(ends["start"][1])[:, 1], clamp[:, 1]) > 0.999:
+            if sign > 0 or dot(quat_to_mat(ends["start"][1])[:, 1], clamp[:, 1]) > 0.999:
                 break
         self._put_ends(model, data, ends)
 
@@ -230,16 +231,16 @@ class WireAssembly:
         for eq in self.end_equalities:
             eq_rows = rows[ids == eq]
             force += data.efc_force[eq_rows[:3]]
-        return float(np.linalg.norm(force))
+        return norm(force)
 
     def min_bend_radius(self, model, data) -> float:
         """Smallest radius of curvature (m) along the wire's centre line (inf when straight)."""
         pts = self.wire.points(model, data)
         seg = np.diff(pts, axis=0)
-        lengths = np.linalg.norm(seg, axis=1)
+        lengths = norm(seg, axis=1)
         unit = seg / lengths[:, None]
-        cos = np.clip(np.einsum("ij,ij->i", unit[:-1], unit[1:]), -1.0, 1.0)
-        turn = np.arccos(cos)
+        cos = np.clip(dot(unit[:-1], unit[1:]), -1.0, 1.0)
+        turn = arccos(cos)
         mean_len = (lengths[:-1] + lengths[1:]) / 2
         curvature = turn / mean_len
         peak = float(curvature.max()) if len(curvature) else 0.0
@@ -248,7 +249,7 @@ class WireAssembly:
 
 def arc_lengths(polyline: np.ndarray) -> np.ndarray:
     """(N,) metres along a polyline from its first point to each of its points."""
-    steps = np.linalg.norm(np.diff(np.asarray(polyline, float), axis=0), axis=1)
+    steps = norm(np.diff(np.asarray(polyline, float), axis=0), axis=1)
     return np.concatenate([[0.0], np.cumsum(steps)])
 
 
@@ -262,11 +263,11 @@ def resample(polyline: np.ndarray, spacing: float) -> np.ndarray:
 
 def rotation_from_axis(axis: np.ndarray, roll: float) -> np.ndarray:
     """Rotation whose x column is ``axis``, whose y column is horizontal, rolled by ``roll``."""
-    x = np.asarray(axis, float) / np.linalg.norm(axis)
+    x = np.asarray(axis, float) / norm(axis)
     y = np.cross([0.0, 0.0, 1.0], x)
-    if np.linalg.norm(y) < 1e-9:
+    if norm(y) < 1e-9:
         y = np.array([0.0, 1.0, 0.0])
-    y /= np.linalg.norm(y)
+    y /= norm(y)
     z = np.cross(x, y)
     c, s = np.cos(roll), np.sin(roll)
     return np.column_stack([x, c * y + s * z, -s * y + c * z])

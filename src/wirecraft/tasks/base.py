@@ -41,6 +41,7 @@ import numpy as np
 from wirecraft import validation
 from wirecraft.assets.robots import RobotHandle
 from wirecraft.assets.wires import WireConfig
+from wirecraft.numerics import matmul, tanh
 from wirecraft.registry import Registry
 from wirecraft.sensors import (
     Contacts,
@@ -232,10 +233,10 @@ class Task(ABC):
         """World points (..., 3) in the robot base frame."""
         origin = data.site_xpos[self.base_site]
         rot = data.site_xmat[self.base_site].reshape(3, 3)
-        return (np.asarray(points) - origin) @ rot
+        return matmul(np.asarray(points) - origin, rot)
 
     def rot_to_base(self, data, rot: np.ndarray) -> np.ndarray:
-        return data.site_xmat[self.base_site].reshape(3, 3).T @ rot
+        return matmul(data.site_xmat[self.base_site].reshape(3, 3).T, rot)
 
     def pad_contacts(self, model, data, target: Contacts) -> tuple[bool, bool]:
         return tuple(touching(model, data, pads, target) for pads in self.pads)
@@ -371,10 +372,10 @@ class BatchedTask(Task):
         """World points (N, 3) in the robot base frame."""
         origin = frame.site_xpos[:, self.base_site]
         rot = frame.rot("site_xmat", self.base_site)
-        return ((points - origin)[:, None, :] @ rot)[:, 0, :]
+        return matmul((points - origin)[:, None, :], rot)[:, 0, :]
 
     def rot_to_base_batch(self, frame: Frame, rots: np.ndarray) -> np.ndarray:
-        return np.swapaxes(frame.rot("site_xmat", self.base_site), 1, 2) @ rots
+        return matmul(np.swapaxes(frame.rot("site_xmat", self.base_site), 1, 2), rots)
 
 
 def weighted_reward(terms: dict, weights: dict[str, float]) -> tuple[dict, np.ndarray]:
@@ -389,5 +390,4 @@ def weighted_reward(terms: dict, weights: dict[str, float]) -> tuple[dict, np.nd
 
 def shaped(distance, scale: float):
     """1 at distance 0, falling smoothly to 0 over a few ``scale``s (scalar or array)."""
-    value = 1.0 - np.tanh(np.asarray(distance, float) / scale)
-    return float(value) if value.ndim == 0 else value
+    return 1.0 - tanh(np.asarray(distance, float) / scale)

@@ -56,6 +56,7 @@ from wirecraft.assets.fixtures import PortStandConfig
 from wirecraft.assets.robots.kinematics import cross3, quats_near
 from wirecraft.assets.shapes import add_to_body, quat_about
 from wirecraft.control import commanded_gap
+from wirecraft.numerics import arccos, arcsin, arctan2, dot, matmul, norm
 from wirecraft.sensors import body_geom_ids, contact_normal_force
 from wirecraft.tasks.assembly import WireAssembly
 from wirecraft.tasks.base import TASKS, BatchedTask, add_contact_found, shaped
@@ -255,11 +256,11 @@ class InsertionTask(BatchedTask):
         depth = dots(rel, axis)
         lateral = norms(rel - depth[:, None] * axis)
         plug_rot = frame.rot("xmat", self.assembly.plug_id)
-        axis_error = np.arccos(np.clip(dots(plug_rot[:, :, 0], axis), -1.0, 1.0))
+        axis_error = arccos(np.clip(dots(plug_rot[:, :, 0], axis), -1.0, 1.0))
         # Roll: angle of the plug's up (z) axis about the socket axis, against the socket's.
         up = plug_rot[:, :, 2] - dots(plug_rot[:, :, 2], axis)[:, None] * axis
         socket_up = port_rot[:, :, 2]
-        roll = np.arctan2(dots(cross3(socket_up, up), axis), dots(socket_up, up))
+        roll = arctan2(dots(cross3(socket_up, up), axis), dots(socket_up, up))
         n = self.connector.symmetry
         if n == 0:
             roll_error = np.zeros_like(roll)
@@ -285,7 +286,7 @@ class InsertionTask(BatchedTask):
         resisting a pull out; negative: holding it back from going deeper); 0 when none is
         engaged.  From the weld's constraint force rows of the last forward pass."""
         axis = data.xmat[self.port_id].reshape(3, 3)[:, 0]
-        return float(np.dot(self._retention_force_vector(data), axis))
+        return dot(self._retention_force_vector(data), axis)
 
     def _retention_force_vector(self, data) -> np.ndarray:
         """(3,) world force of the engaged weld on the plug; zero when none is engaged or its
@@ -307,7 +308,7 @@ class InsertionTask(BatchedTask):
         contacts = contact_normal_force(
             model, data, self.assembly.plug_contacts, self.port_contacts
         )
-        return contacts + float(np.linalg.norm(self._retention_force_vector(data)))
+        return contacts + norm(self._retention_force_vector(data))
 
     def fixture_force(self, model, data) -> float:
         """The insertion force: cable against the port, latch included (plug_port_force)."""
@@ -377,7 +378,7 @@ class InsertionTask(BatchedTask):
                 self.to_base_batch(frame, frame.site_xpos[:, self.tcp_site]),
                 quats_near(tcp_rot, self.robot.home_tcp_rot),
                 self.pads_touching(frame).astype(float),
-                ((seated - tip)[:, None, :] @ base_rot)[:, 0, :],
+                matmul((seated - tip)[:, None, :], base_rot)[:, 0, :],
                 self.to_base_batch(frame, frame.xpos[:, self.assembly.plug_id]),
                 # the plug's sign follows the socket frame, which a seated plug's frame matches
                 quats_near(plug_rot, port_rot),
@@ -420,12 +421,12 @@ class InsertionTask(BatchedTask):
         ratchet = np.maximum(0.0, depth_fraction - high_water)
         trackers["depth_high_water"] = np.maximum(high_water, depth_fraction)
         tcp_rot = frame.rot("site_xmat", self.tcp_site)
-        tilt = np.arccos(np.clip(-tcp_rot[:, 2, 2], -1, 1))  # TCP z from straight down
+        tilt = arccos(np.clip(-tcp_rot[:, 2, 2], -1, 1))  # TCP z from straight down
         # The fingers' closing axis (TCP y) off square to the plug's long axis: 0 for a grasp
         # across the tail.  The gripper starts closing roughly along the plug; paid for tilt
         # alone, PPO kept that yaw and pinched the plug end to end (docs/baselines.md).
         plug_axis = frame.rot("xmat", self.assembly.plug_id)[:, :, 0]
-        across = np.arcsin(np.clip(np.abs(dots(tcp_rot[:, :, 1], plug_axis)), 0, 1))
+        across = arcsin(np.clip(np.abs(dots(tcp_rot[:, :, 1], plug_axis)), 0, 1))
         return {
             "reach": shaped(norms(tcp - tail), 0.1),
             "grasp": held,

@@ -43,6 +43,7 @@ from wirecraft import validation
 from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ClipConfig, PlacedClip, add_clip
 from wirecraft.assets.robots.kinematics import quat_near
+from wirecraft.numerics import norm
 from wirecraft.sensors import body_geom_ids
 from wirecraft.tasks.assembly import WireAssembly, resample
 from wirecraft.tasks.base import EPISODE_SECONDS, TASKS, Task, shaped
@@ -228,7 +229,7 @@ class RoutingTask(Task):
         clip = self.placed_clips(data)[index]
         slot = np.array(clip.pos) + [0.0, 0.0, clip.config.base_height]
         points = self.wire_points(model, data)
-        nearest = points[np.argmin(np.linalg.norm(points - slot, axis=1))]
+        nearest = points[np.argmin(norm(points - slot, axis=1))]
         return routed, clip, slot, nearest
 
     # -- observation ------------------------------------------------------------------------
@@ -264,9 +265,9 @@ class RoutingTask(Task):
         held = all(self.pad_contacts(model, data, self.assembly.wire_contacts))
         tcp = data.site_xpos[self.tcp_site]
         clip_top = clip.pos[2] + clip.config.base_height + clip.config.slot_depth
-        horizontal = float(np.linalg.norm((nearest - slot)[:2]))
+        horizontal = norm((nearest - slot)[:2])
         return {
-            "reach": shaped(float(np.linalg.norm(tcp - nearest)), 0.1),
+            "reach": shaped(norm(tcp - nearest), 0.1),
             "grasp": float(held),
             "lift": float(held) * float(np.clip((nearest[2] - clip_top) / 0.02 + 1.0, 0, 1)),
             "over_slot": float(held) * shaped(horizontal, 0.02),

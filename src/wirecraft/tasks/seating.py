@@ -51,6 +51,7 @@ from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ChannelConfig, add_segmented_channel
 from wirecraft.assets.fixtures.channels import MAX_BEND, NUM_SEGMENTS
 from wirecraft.assets.robots.kinematics import quat_near, rot_z
+from wirecraft.numerics import norm
 from wirecraft.sensors import body_geom_ids
 from wirecraft.tasks.assembly import WireAssembly
 from wirecraft.tasks.base import TASKS, Task, shaped
@@ -231,7 +232,7 @@ class SeatingTask(Task):
         wall_top = self.placed.config.floor + self.placed.config.wall_height
         plug_z = data.xpos[self.assembly.plug_id][2]
         return {
-            "reach": shaped(float(np.linalg.norm(tcp - grasp_point)), 0.1),
+            "reach": shaped(norm(tcp - grasp_point), 0.1),
             "grasp": float(held),
             "lift": float(held) * float(np.clip((plug_z - wall_top) / 0.03, 0.0, 1.0)),
             "inside": fraction,
