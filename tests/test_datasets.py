@@ -635,10 +635,10 @@ def test_ray_tasks_generate_the_same_episode(reference, tmp_path):
     [
         (["--task", "knitting"], "unknown task"),
         (["--connector", "hdmi"], "hdmi"),
-        (["--episodes", "0"], "episodes must be"),
+        (["--episodes", "0"], "--episodes: must be"),
         (["--fps", "7"], "fps must divide"),
-        (["--workers", "-1"], "workers must be"),
-        (["--vcodec", "mpeg1"], "unknown vcodec"),
+        (["--workers", "-1"], "--workers: must be"),
+        (["--vcodec", "mpeg1"], "--vcodec: invalid choice"),
         (["--control", "joint"], "drives control='cartesian'"),
     ],
 )

@@ -3,11 +3,29 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
+
+from wirecraft.cli_args import (
+    atomic_path,
+    int_list,
+    number,
+    output_dir,
+    output_file,
+    ray_address,
+    suffixed,
+    write_json,
+    write_text,
+)
+
+# Upper bounds of the command-line values (larger ones are refused, not run for days).
+MAX_SECONDS = 3600.0  # simulated seconds: episodes, benchmarks, settling
+MAX_ENVS = 4096
+MAX_WORKERS = 1024
+MAX_SEED = 2**32 - 1
+FRAMEBUFFER = (1280, 960)  # off-screen width x height of every scene (scene.new_spec)
 
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callable]] = {}
 
@@ -20,28 +38,37 @@ def command(name: str, help_text: str, configure: Callable[[argparse.ArgumentPar
     return decorator
 
 
-def write_json(path: str | None, payload) -> None:
-    """Write results atomically (a crash never leaves half a file)."""
-    if not path:
-        return
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+def usage_error(flag: str, message: str) -> ValueError:
+    return ValueError(f"{flag}: {message}")
+
+
+def check_path(flag: str, text: str, kind=output_file) -> str:
+    """``kind`` (an argparse path check) as a ValueError naming ``flag``."""
+    try:
+        return kind(text)
+    except argparse.ArgumentTypeError as err:
+        raise usage_error(flag, str(err)) from None
+
+
+def only_with(args, where: str, *flags: str) -> None:
+    """Refuse ``flags`` given on the command line (not None / False) outside ``where``."""
+    for flag in flags:
+        value = getattr(args, flag.lstrip("-").replace("-", "_"))
+        if value is not None and value is not False and value != []:
+            raise usage_error(flag, f"applies only with {where}")
 
 
 # -- task flags shared by collect, eval and train -------------------------------------------------
 # Flag -> (keyword, type, task families that accept it).  None as families: every task.
-TASK_FLAGS: dict[str, tuple[str, type, tuple[str, ...] | None]] = {
+TASK_FLAGS: dict[str, tuple[str, Callable, tuple[str, ...] | None]] = {
     "--robot": ("robot", str, None),
     "--wire": ("wire", str, None),
     "--control": ("control", str, None),
-    "--image-size": ("image_size", int, None),
+    "--image-size": ("image_size", number(16, min(FRAMEBUFFER), integer=True), None),
     "--connector": ("connector", str, ("insertion", "routing")),
-    "--clearance": ("clearance", float, ("insertion",)),
-    "--num-clips": ("num_clips", int, ("routing",)),
-    "--clip-opening": ("clip_opening", float, ("routing",)),
+    "--clearance": ("clearance", number(0), ("insertion",)),
+    "--num-clips": ("num_clips", number(1, 64, integer=True), ("routing",)),
+    "--clip-opening": ("clip_opening", number(0, low_open=True), ("routing",)),
     "--channel": ("channel", str, ("seating",)),
 }
 
@@ -67,21 +94,46 @@ def task_kwargs(args: argparse.Namespace) -> tuple[str, dict]:
     task = args.task
     family = next((k for k, v in wirecraft.TASK_IDS.items() if task in (k, v)), None)
     if family is None:
-        raise ValueError(f"unknown task {task!r}; valid: {', '.join(wirecraft.TASK_IDS)}")
+        raise usage_error(
+            "--task", f"unknown task {task!r}; valid: {', '.join(wirecraft.TASK_IDS)}"
+        )
     kwargs = {}
     for flag, (key, _, families) in TASK_FLAGS.items():
         value = getattr(args, key, None)
         if value is None:
             continue
         if families is not None and family not in families:
-            raise ValueError(f"{flag} does not apply to the {family} task")
+            where = " and ".join(families)
+            raise ValueError(f"{flag} does not apply to the {family} task (only {where})")
         kwargs[key] = value
+    for flag, (key, kind, _) in TASK_FLAGS.items():
+        if kind is str and key in kwargs and kwargs[key] not in (valid := _names(key)):
+            raise usage_error(flag, f"unknown {key} {kwargs[key]!r}; valid: {', '.join(valid)}")
     return family, kwargs
+
+
+def _names(key: str) -> list[str]:
+    """The valid values of a task flag that names something."""
+    if key == "robot":
+        from wirecraft.assets.robots import ROBOTS as names
+    elif key == "wire":
+        from wirecraft.assets.wires import WIRE_MODELS as names
+    elif key == "control":
+        from wirecraft.control import CONTROLLERS as names
+    elif key == "connector":
+        from wirecraft.assets.connectors import CONNECTORS as names
+    else:
+        from wirecraft.tasks.seating import CHANNELS
+
+        return list(CHANNELS)
+    return list(names.names())
 
 
 # -- list ---------------------------------------------------------------------------------------
 def _list_args(p):
-    p.add_argument("--json", metavar="PATH", help="also write the listing as JSON")
+    p.add_argument(
+        "--json", metavar="PATH", type=output_file, help="also write the listing as JSON"
+    )
 
 
 @command(
@@ -128,10 +180,21 @@ def cmd_list(args) -> int:
 def _view_args(p):
     p.add_argument("--scene", default="wires", help="scene to show (see `wirecraft list`)")
     p.add_argument("--headless", action="store_true", help="render an image instead of a window")
-    p.add_argument("--out", default="wirecraft_view.png", help="image path for --headless")
-    p.add_argument("--settle", type=float, default=1.0, help="seconds simulated before the shot")
-    p.add_argument("--width", type=int, default=960)
-    p.add_argument("--height", type=int, default=720)
+    p.add_argument(
+        "--out",
+        type=suffixed(".png", ".jpg", ".jpeg"),
+        help="image path for --headless (default: wirecraft_view.png)",
+    )
+    p.add_argument(
+        "--settle",
+        type=number(0, 60),
+        help="--headless: seconds simulated before the shot, 0 to 60 (default: 1)",
+    )
+    w, h = FRAMEBUFFER
+    p.add_argument("--width", type=number(16, w, integer=True), help=f"--headless: 16 to {w} (960)")
+    p.add_argument(
+        "--height", type=number(16, h, integer=True), help=f"--headless: 16 to {h} (720)"
+    )
 
 
 @command("view", "show a scene in MuJoCo's viewer, or render it (--headless)", _view_args)
@@ -143,24 +206,28 @@ def cmd_view(args) -> int:
     from wirecraft.scenes import SCENES
 
     build = SCENES.get(args.scene)
-    if args.settle < 0:
-        raise ValueError(f"--settle must be >= 0, got {args.settle}")
+    if not args.headless:
+        only_with(args, "--headless", "--out", "--settle", "--width", "--height")
+        if not os.environ.get("DISPLAY") and sys.platform.startswith("linux"):
+            raise RuntimeError("no display: use --headless --out FILE.png")
+    out = args.out or check_path("--out", "wirecraft_view.png")
+    settle = 1.0 if args.settle is None else args.settle
     spec, viewpoint = build()
     model = compile_spec(spec)
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     if not args.headless:
-        if not os.environ.get("DISPLAY") and sys.platform.startswith("linux"):
-            raise RuntimeError("no display: use --headless --out FILE.png")
         import mujoco.viewer
 
         mujoco.viewer.launch(model, data)
         return 0
-    for _ in range(int(args.settle / model.opt.timestep)):
+    for _ in range(int(settle / model.opt.timestep)):
         mujoco.mj_step(model, data)
-    with FastRenderer(model, height=args.height, width=args.width) as renderer:
-        path = save_png(renderer.render(data, viewpoint.camera()), args.out)
-    print(f"wrote {path}")
+    with FastRenderer(model, height=args.height or 720, width=args.width or 960) as renderer:
+        image = renderer.render(data, viewpoint.camera())
+    with atomic_path(out) as tmp:
+        save_png(image, tmp)
+    print(f"wrote {out}")
     return 0
 
 
@@ -171,7 +238,9 @@ def _export_args(p):
     target.add_argument(
         "--all", action="store_true", help="export every part into --out (a folder)"
     )
-    p.add_argument("--clearance", type=float, default=0.003, help="socket gap per side, metres")
+    p.add_argument(
+        "--clearance", type=number(0, 0.01), default=0.003, help="socket gap per side, 0 to 0.01 m"
+    )
     p.add_argument("--out", required=True, help="STL file (or folder with --all)")
 
 
@@ -185,6 +254,14 @@ def cmd_export_stl(args) -> int:
 
     from wirecraft.assets.export import export_stl, part_mesh, part_names
 
+    if args.all:
+        check_path("--out", args.out, output_dir)
+    else:
+        check_path("--out", args.out, suffixed(".stl"))
+        if args.part not in part_names():
+            raise usage_error(
+                "--part", f"unknown part {args.part!r}; valid: {', '.join(part_names())}"
+            )
     if not args.all:
         path = export_stl(args.part, args.out, clearance=args.clearance)
         mesh = part_mesh(args.part, args.clearance)
@@ -196,49 +273,70 @@ def cmd_export_stl(args) -> int:
     return 0
 
 
-def _int_list(flag: str, text: str) -> list[int]:
-    try:
-        values = [int(v) for v in str(text).split(",") if v.strip()]
-    except ValueError:
-        raise ValueError(f"{flag} must be comma-separated integers, got {text!r}") from None
-    if not values or min(values) < 1:
-        raise ValueError(f"{flag} must be integers >= 1, got {text!r}")
-    return values
-
-
 # -- bench --------------------------------------------------------------------------------------
 BENCH_SUITES = ("wires", "robots", "envs")
 
 
 def _bench_args(p):
-    p.add_argument("--suite", default="wires", help=f"one of: {', '.join(BENCH_SUITES)}")
-    p.add_argument("--seconds", type=float, default=5.0, help="simulated seconds timed per row")
-    p.add_argument("--wire", nargs="*", default=None, help="wire models (default: all)")
-    p.add_argument("--task", nargs="*", default=None, help="envs suite: tasks (default: insertion)")
+    p.add_argument("--suite", default="wires", choices=BENCH_SUITES, help="(default: wires)")
+    p.add_argument(
+        "--seconds",
+        type=number(0, 600, low_open=True),
+        default=5.0,
+        help="simulated seconds timed per row, up to 600 (default: 5)",
+    )
+    p.add_argument(
+        "--wire",
+        nargs="+",
+        default=None,
+        help="wires and envs suites: wire models (default: all; envs: articulated)",
+    )
+    p.add_argument("--task", nargs="+", default=None, help="envs suite: tasks (default: insertion)")
     p.add_argument(
         "--num-envs",
+        type=int_list(1, MAX_ENVS),
         default=None,
-        help="envs suite: comma-separated counts (default: 1,4,16,64,256)",
+        help=f"envs suite: comma-separated counts, 1 to {MAX_ENVS} (default: 1,4,16,64,256)",
     )
-    p.add_argument("--threads", default="1,2", help="envs suite: comma-separated thread counts")
-    p.add_argument("--warmup", type=float, default=1.0, help="envs suite: warm-up seconds")
+    p.add_argument(
+        "--threads",
+        type=int_list(1, 1024),
+        default=None,
+        help="envs suite: comma-separated thread counts (default: 1,2)",
+    )
+    p.add_argument(
+        "--warmup",
+        type=number(0, 600),
+        default=None,
+        help="envs suite: warm-up seconds, up to 600 (default: 1)",
+    )
     p.add_argument(
         "--full-info",
         action="store_true",
         help="envs suite: with per-environment diagnostics and synced environments "
         "(as evaluation runs); default: as training runs",
     )
-    p.add_argument("--out", default="out/bench", help="envs suite: folder for CSV and PNG")
-    p.add_argument("--json", metavar="PATH", help="write the rows as JSON")
+    p.add_argument(
+        "--out", type=output_dir, help="envs suite: folder for CSV and PNG (default: out/bench)"
+    )
+    p.add_argument("--json", metavar="PATH", type=output_file, help="write the rows as JSON")
 
 
 @command("bench", "print throughput figures (physics steps/s, real-time factor)", _bench_args)
 def cmd_bench(args) -> int:
-    if args.suite not in BENCH_SUITES:
-        raise ValueError(f"unknown suite {args.suite!r}; valid: {', '.join(BENCH_SUITES)}")
-    if not args.seconds > 0:
-        raise ValueError(f"--seconds must be > 0, got {args.seconds}")
+    if args.suite != "envs":
+        envs_flags = ("--task", "--num-envs", "--threads", "--warmup", "--full-info", "--out")
+        only_with(args, "--suite envs", *envs_flags)
+    if args.suite == "robots":
+        only_with(args, "--suite wires or --suite envs", "--wire")
+    from wirecraft.assets.wires import WIRE_MODELS
     from wirecraft.benchmarks import robots, wires
+
+    for wire in args.wire or []:
+        if wire not in WIRE_MODELS.names():
+            raise usage_error(
+                "--wire", f"unknown wire model {wire!r}; valid: {', '.join(WIRE_MODELS.names())}"
+            )
 
     if args.suite == "wires":
         rows = wires.run(args.seconds, args.wire)
@@ -248,33 +346,46 @@ def cmd_bench(args) -> int:
         robots.print_table(rows)
     else:
         from wirecraft import TASK_IDS
-        from wirecraft.assets.wires import WIRE_MODELS
         from wirecraft.benchmarks import envs
 
         tasks = args.task or ["insertion"]
         for task in tasks:
             if task not in TASK_IDS:
-                raise ValueError(f"unknown task {task!r}; valid: {', '.join(TASK_IDS)}")
+                raise usage_error("--task", f"unknown task {task!r}; valid: {', '.join(TASK_IDS)}")
+        out = Path(args.out or check_path("--out", "out/bench", output_dir))
         wire_models = args.wire or ["articulated"]
-        for wire in wire_models:
-            WIRE_MODELS.get(wire)
-        counts = _int_list("--num-envs", args.num_envs or "1,4,16,64,256")
-        threads = _int_list("--threads", args.threads)
+        counts = args.num_envs or [1, 4, 16, 64, 256]
+        threads = args.threads or [1, 2]
+        warmup = 1.0 if args.warmup is None else args.warmup
         info = "full" if args.full_info else "training"
-        rows = envs.run(tasks, wire_models, counts, threads, args.seconds, args.warmup, info)
+        rows = envs.run(tasks, wire_models, counts, threads, args.seconds, warmup, info)
         envs.print_table(rows)
-        envs.write_csv(rows, Path(args.out) / "bench_envs.csv")
-        envs.plot(rows, Path(args.out) / "bench_envs.png")
-        print(f"wrote {args.out}/bench_envs.csv and {args.out}/bench_envs.png")
+        with atomic_path(out / "bench_envs.csv") as tmp:
+            envs.write_csv(rows, tmp)
+        with atomic_path(out / "bench_envs.png") as tmp:
+            envs.plot(rows, tmp)
+        print(f"wrote {out}/bench_envs.csv and {out}/bench_envs.png")
     write_json(args.json, rows)
     return 0
 
 
 # -- demo ---------------------------------------------------------------------------------------
 def _demo_args(p):
-    p.add_argument("--out", default="out/demo", help="folder for the images and summary")
-    p.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per wire drop")
-    p.add_argument("--json", metavar="PATH", help="summary as JSON (default: OUT/summary.json)")
+    p.add_argument(
+        "--out", type=output_dir, default="out/demo", help="folder for the images and summary"
+    )
+    p.add_argument(
+        "--seconds",
+        type=number(0, 60, low_open=True),
+        default=2.0,
+        help="simulated seconds per wire drop, up to 60 (default: 2)",
+    )
+    p.add_argument(
+        "--json",
+        metavar="PATH",
+        type=output_file,
+        help="summary as JSON (default: OUT/summary.json)",
+    )
 
 
 @command(
@@ -285,8 +396,6 @@ def _demo_args(p):
 def cmd_demo(args) -> int:
     from wirecraft.demo import run_demo, run_task_demo, summary_markdown
 
-    if not args.seconds > 0:
-        raise ValueError(f"--seconds must be > 0, got {args.seconds}")
     tasks = run_task_demo(args.out)
     print(
         f"{'task':10s} {'expert':16s} {'success':>8s} {'first (s)':>9s} {'steps/s':>8s} "
@@ -309,7 +418,7 @@ def cmd_demo(args) -> int:
             f"{r['fraction_in_channel']:>10.0%} {str(r['diverged']):>8s}"
         )
     write_json(args.json or str(Path(args.out) / "summary.json"), {"tasks": tasks, "rows": rows})
-    (Path(args.out) / "summary.md").write_text(summary_markdown(tasks, rows))
+    write_text(Path(args.out) / "summary.md", summary_markdown(tasks, rows))
     videos = ", ".join(r["video"] for r in tasks)
     print(f"wrote {args.out}: {videos}, tasks.png, wires.png, summary.md, summary.json")
     return 1 if any(r["diverged"] for r in rows + tasks) else 0
@@ -318,21 +427,61 @@ def cmd_demo(args) -> int:
 # -- collect ------------------------------------------------------------------------------------
 def _collect_args(p):
     add_task_args(p)
-    p.add_argument("--episodes", type=int, default=10, help="episodes the dataset should hold")
-    p.add_argument("--out", required=True, help="dataset folder (LeRobot v3)")
-    p.add_argument("--workers", type=int, default=2, help="worker processes (0: this process)")
-    p.add_argument("--ray", metavar="ADDRESS", help="generate with Ray ('local': start one here)")
+    p.add_argument(
+        "--episodes",
+        type=number(1, 10**6, integer=True),
+        default=10,
+        help="episodes the dataset should hold",
+    )
+    p.add_argument("--out", type=output_dir, required=True, help="dataset folder (LeRobot v3)")
+    p.add_argument(
+        "--workers",
+        type=number(0, MAX_WORKERS, integer=True),
+        default=None,
+        help="worker processes (0: this process; default 2); with --ray local: its CPUs",
+    )
+    p.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        type=ray_address,
+        help="generate with Ray: HOST:PORT, auto, or local (start one here)",
+    )
     p.add_argument("--keep-failures", action="store_true", help="also save failed episodes")
     p.add_argument("--resume", action="store_true", help="continue the dataset in --out")
-    p.add_argument("--fps", type=int, default=30, help="frames per second (a divisor of 60)")
-    p.add_argument("--seed", type=int, default=0, help="episode k is reset with seed (SEED, k)")
     p.add_argument(
-        "--success-hold", type=float, default=0.5, help="end once success held this long (s)"
+        "--fps",
+        type=number(1, 60, integer=True),
+        default=30,
+        help="frames per second (a divisor of 60)",
     )
-    p.add_argument("--vcodec", default="h264", help="video codec: h264 or libsvtav1 (AV1)")
-    p.add_argument("--commit-every", type=int, default=10, help="episodes per durable commit")
-    p.add_argument("--max-attempts", type=int, default=None, help="default: 2 * episodes + 10")
-    p.add_argument("--json", metavar="PATH", help="write the report as JSON")
+    p.add_argument(
+        "--seed",
+        type=number(0, MAX_SEED, integer=True),
+        default=0,
+        help="episode k is reset with seed (SEED, k)",
+    )
+    p.add_argument(
+        "--success-hold",
+        type=number(0, 60),
+        default=0.5,
+        help="end once success held this long, 0 to 60 s (0: never early)",
+    )
+    p.add_argument(
+        "--vcodec", default="h264", choices=("h264", "libsvtav1"), help="video codec (AV1: svt)"
+    )
+    p.add_argument(
+        "--commit-every",
+        type=number(1, 10**6, integer=True),
+        default=10,
+        help="episodes per durable commit",
+    )
+    p.add_argument(
+        "--max-attempts",
+        type=number(1, 10**7, integer=True),
+        default=None,
+        help="default: 2 * episodes + 10",
+    )
+    p.add_argument("--json", metavar="PATH", type=output_file, help="write the report as JSON")
 
 
 @command("collect", "write scripted demonstrations as a LeRobot v3 dataset", _collect_args)
@@ -345,6 +494,17 @@ def cmd_collect(args) -> int:
     )
 
     family, kwargs = task_kwargs(args)
+    out = Path(args.out)
+    if args.resume:
+        check_resume(
+            args.out, "meta/wirecraft_collect.json", "dataset written by wirecraft collect"
+        )
+    elif out.is_dir() and any(out.iterdir()):
+        raise usage_error(
+            "--out", f"{out} exists and is not empty: --resume continues that dataset"
+        )
+    if args.ray and args.ray != "local":
+        only_with(args, "--ray local or without --ray", "--workers")
     image_size = kwargs.pop("image_size", DEFAULT_IMAGE_SIZE)
     settings = CollectSettings(
         task=family,
@@ -360,7 +520,7 @@ def cmd_collect(args) -> int:
         settings,
         args.out,
         args.episodes,
-        workers=args.workers,
+        workers=2 if args.workers is None else args.workers,
         ray_address=args.ray,
         resume=args.resume,
         commit_every=args.commit_every,
@@ -374,27 +534,84 @@ def cmd_collect(args) -> int:
     return 1 if report.gave_up else 0
 
 
+def check_resume(out: str, marker: str, kind: str) -> None:
+    """``--resume`` needs something to continue: refuse a missing or foreign ``out``."""
+    if not Path(out).exists():
+        raise usage_error("--resume", f"{out} does not exist: nothing to resume")
+    if not (Path(out) / marker).is_file():
+        raise usage_error("--resume", f"{out} is not a {kind} (no {marker}): nothing to resume")
+
+
 # -- train --------------------------------------------------------------------------------------
 def _train_args(p):
     p.add_argument("algorithm", choices=("ppo", "sacfd", "vision-ppo"), help="RL baseline")
     add_task_args(p)
-    p.add_argument("--out", required=True, help="run directory (checkpoints, logs, settings)")
-    p.add_argument("--num-envs", type=int, default=None, help="parallel environments")
-    p.add_argument("--steps", default=None, help="total env steps, e.g. 2e6 (default: config's)")
-    p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--threads", type=int, default=None, help="physics threads (0: all CPUs)")
-    p.add_argument("--episode-seconds", type=float, default=None, help="episode length, s")
+    p.set_defaults(task=None)
+    p.add_argument(
+        "--out", type=output_dir, required=True, help="run directory (checkpoints, logs, settings)"
+    )
+    p.add_argument(
+        "--num-envs",
+        type=number(1, MAX_ENVS, integer=True),
+        default=None,
+        help=f"parallel environments, 1 to {MAX_ENVS}",
+    )
+    p.add_argument(
+        "--steps",
+        type=number(1, 1e12),
+        default=None,
+        help="total env steps, e.g. 2e6 (default: config's)",
+    )
+    p.add_argument("--seed", type=number(0, MAX_SEED, integer=True), default=None)
+    p.add_argument(
+        "--threads",
+        type=number(0, 1024, integer=True),
+        default=None,
+        help="physics threads (0: all CPUs)",
+    )
+    p.add_argument(
+        "--episode-seconds",
+        type=number(0, MAX_SECONDS, low_open=True),
+        default=None,
+        help=f"episode length, up to {MAX_SECONDS:g} s",
+    )
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument(
         "--set", action="append", default=[], metavar="NAME=VALUE", help="any config setting"
     )
-    p.add_argument("--json", metavar="PATH", help="write the run summary as JSON")
+    p.add_argument("--json", metavar="PATH", type=output_file, help="write the run summary as JSON")
+
+
+def check_resumed_run(args) -> None:
+    """A resumed run keeps its task and environment: a task flag must repeat what it holds."""
+    from wirecraft.rl.common import read_run
+
+    run = read_run(Path(args.out))
+    if args.task is not None:
+        family, _ = task_kwargs(args)
+        if family != run["task"]:
+            raise usage_error("--task", f"{args.out} holds a {run['task']} run, not {family}")
+    given = {flag: getattr(args, key) for flag, (key, _, _) in TASK_FLAGS.items()}
+    given["--episode-seconds"] = args.episode_seconds
+    stored = run["env_kwargs"]
+    for flag, value in given.items():
+        key = flag[2:].replace("-", "_")
+        if value is not None and stored.get(key) != value:
+            raise usage_error(
+                flag,
+                f"a resumed run keeps its environment ({key}={stored.get(key)!r} in {args.out})",
+            )
 
 
 @command("train", "train an RL baseline (PPO, SACfD, vision PPO); resumable", _train_args)
 def cmd_train(args) -> int:
+    from wirecraft.rl.common import RUN_FILE
     from wirecraft.rl.train import parse_cli_settings, train
 
+    if args.resume:
+        check_resume(args.out, RUN_FILE, "RL run directory")
+        check_resumed_run(args)
+    args.task = args.task or "insertion"
     task, env_kwargs = task_kwargs(args)
     if args.episode_seconds is not None:
         env_kwargs["episode_seconds"] = args.episode_seconds
@@ -442,10 +659,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exit_:
+        return exit_.code if isinstance(exit_.code, int) else 2
     try:
         return COMMANDS[args.command][2](args)
-    except (ValueError, RuntimeError) as err:
+    except (ValueError, RuntimeError, OSError) as err:
         print(f"wirecraft {args.command}: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -490,6 +490,21 @@ def _record_provenance(out: Path, workers: int, ray_address: str | None) -> None
     write_json_atomic(path, stored)
 
 
+def _remove_failed_start(out: Path, created: bool) -> None:
+    """A new dataset that failed before its first episode: remove what was written, so that
+    the same command can run again."""
+    import shutil
+
+    if created:
+        shutil.rmtree(out, ignore_errors=True)
+        return
+    for child in out.iterdir():
+        if child.is_dir():
+            shutil.rmtree(child, ignore_errors=True)
+        else:
+            child.unlink(missing_ok=True)
+
+
 def collect(
     settings: CollectSettings,
     out: str | os.PathLike,
@@ -523,6 +538,7 @@ def collect(
     # What the dataset holds comes from its last commit (opening the writer rolls it back to
     # that commit), so the workers can start before the writer: opening it imports lerobot
     # (torch, torchvision: ~4 s of CPU), time the workers spend on their first episodes.
+    created = not out.exists()
     committed = _check_out(settings, out, resume)
     progress = dict(committed["progress"] or {}) if committed else {}
     records: list[dict] = list(progress.get("episodes", []))
@@ -662,6 +678,8 @@ def collect(
     except BaseException:
         if executor is not None:
             executor.close()
+        if committed is None and report.saved == 0 and out.is_dir():
+            _remove_failed_start(out, created)
         raise
     finally:
         bar.close()

@@ -380,6 +380,14 @@ def load_dataset(root: str | os.PathLike, **kwargs):
 
     root = Path(root)
     record = read_commit(root)
+    if record is None and not (root / INFO_FILE).is_file():
+        raise ValueError(f"{root} holds no LeRobot dataset (no {INFO_FILE})")
+    if record is not None and _episode_files(root) != record["files"]:
+        raise ValueError(
+            f"{root} is incomplete: it was written to after its last commit and not closed "
+            f"(interrupted or killed?); `wirecraft collect --resume --out {root}` rolls it back "
+            "to that commit and continues it (datasets.writer.recover only rolls it back)"
+        )
     repo_id = record["repo_id"] if record else DEFAULT_REPO_ID
     kwargs.setdefault("video_backend", VIDEO_BACKEND)
     return LeRobotDataset(repo_id, root=root, **kwargs)

@@ -16,6 +16,9 @@ DEFAULT_FORCE = 2.0  # N
 
 
 def configure(p: argparse.ArgumentParser, add_task_args) -> None:
+    from wirecraft.cli import MAX_ENVS, MAX_SECONDS, MAX_SEED, MAX_WORKERS
+    from wirecraft.cli_args import number, output_dir, output_file, ray_address, suffixed
+
     add_task_args(p)
     p.add_argument(
         "--policy",
@@ -23,41 +26,78 @@ def configure(p: argparse.ArgumentParser, add_task_args) -> None:
         help="scripted, random, zero, an RL run directory (wirecraft_rl.json) or a LeRobot "
         "pretrained-policy directory",
     )
-    p.add_argument("--seeds", type=int, default=REFERENCE_SEEDS, help="evaluation seeds")
-    p.add_argument("--episodes", type=int, default=REFERENCE_EPISODES, help="episodes per seed")
+    p.add_argument(
+        "--seeds",
+        type=number(1, 10_000, integer=True),
+        default=REFERENCE_SEEDS,
+        help="evaluation seeds",
+    )
+    p.add_argument(
+        "--episodes",
+        type=number(1, 100_000, integer=True),
+        default=REFERENCE_EPISODES,
+        help="episodes per seed",
+    )
     p.add_argument(
         "--seed",
-        type=int,
+        type=number(0, MAX_SEED, integer=True),
         default=None,
         help="evaluate on a fresh seed list derived from this number (held-out check) instead "
         "of the frozen public list",
     )
     p.add_argument(
         "--episode-seconds",
-        type=float,
+        type=number(0, MAX_SECONDS, low_open=True),
         default=None,
         help="episode length (s); default: the task's (8 s; routing 8 s per clip)",
     )
     p.add_argument(
         "--retain-force",
-        type=float,
-        default=DEFAULT_FORCE,
-        help="retention check: pull on the seated plug, newtons",
+        type=number(0, 1000),
+        default=None,
+        help=f"insertion only: retention check, pull on the seated plug, 0 to 1000 N "
+        f"(default: {DEFAULT_FORCE:g})",
     )
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=1, help="worker processes")
-    where.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster ('local': here)")
-    p.add_argument("--batch", type=int, default=None, help="environments stepped together")
-    p.add_argument("--json", metavar="PATH", help="write the results (metrics, episodes)")
-    p.add_argument("--traces", metavar="PATH", help="write per-step traces (Parquet)")
-    p.add_argument("--video", metavar="DIR", help="write MP4 videos of chosen episodes")
+    where.add_argument(
+        "--workers", type=number(1, MAX_WORKERS, integer=True), default=1, help="worker processes"
+    )
+    where.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        type=ray_address,
+        help="run on a Ray cluster: HOST:PORT, auto, or local (start one here)",
+    )
+    p.add_argument(
+        "--batch",
+        type=number(1, MAX_ENVS, integer=True),
+        default=None,
+        help="environments stepped together",
+    )
+    p.add_argument(
+        "--json", metavar="PATH", type=output_file, help="write the results (metrics, episodes)"
+    )
+    p.add_argument(
+        "--traces",
+        metavar="PATH",
+        type=suffixed(".parquet"),
+        help="write per-step traces (Parquet, .parquet)",
+    )
+    p.add_argument(
+        "--video", metavar="DIR", type=output_dir, help="write MP4 videos of chosen episodes"
+    )
     p.add_argument(
         "--video-episodes",
-        default="auto",
-        help="auto (first success + first of each failure label), all, or SEED:EPISODE,...",
+        default=None,
+        help="with --video or --report: auto (first success + first of each failure label; "
+        "the default), all, or SEED:EPISODE,...",
     )
-    p.add_argument("--report", metavar="DIR", help="add this run to the HTML report in DIR")
-    p.add_argument("--device", default="cpu", help="torch device for learned policies")
+    p.add_argument(
+        "--report", metavar="DIR", type=output_dir, help="add this run to the HTML report in DIR"
+    )
+    p.add_argument(
+        "--device", default=None, help="torch device for learned policies (default: cpu)"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -120,11 +160,27 @@ def print_summary(payload: dict, seconds: float) -> None:
 
 
 def run(args, task_kwargs, write_json) -> int:
+    from wirecraft.cli import only_with, usage_error
     from wirecraft.evaluation import report as report_mod
+    from wirecraft.evaluation.policies import BUILTIN_POLICIES as BUILT_IN_POLICIES
     from wirecraft.evaluation.protocol import run_evaluation
     from wirecraft.evaluation.traces import write_traces
 
     family, env_kwargs = task_kwargs(args)
+    if family != "insertion":
+        only_with(args, "--task insertion (retention applies to plugs)", "--retain-force")
+    if not (args.video or args.report):
+        only_with(args, "--video or --report", "--video-episodes")
+    if args.policy in BUILT_IN_POLICIES:
+        only_with(args, "a learned policy (an RL run or LeRobot directory)", "--device")
+    elif not Path(args.policy).exists():
+        raise usage_error(
+            "--policy",
+            f"{args.policy!r} is neither {', '.join(BUILT_IN_POLICIES)} nor an existing directory",
+        )
+    retain_force = DEFAULT_FORCE if args.retain_force is None else args.retain_force
+    args.video_episodes = args.video_episodes or "auto"
+    device = args.device or "cpu"
     wanted = parse_video_spec(args.video_episodes)  # a typo fails now, not after the run
     if isinstance(wanted, list):
         outside = [w for w in wanted if not (0 <= w[0] < args.seeds and 0 <= w[1] < args.episodes)]
@@ -139,18 +195,22 @@ def run(args, task_kwargs, write_json) -> int:
         workers=args.workers,
         seed=args.seed,
         episode_seconds=args.episode_seconds,
-        retain_force=args.retain_force,
+        retain_force=retain_force,
         batch=args.batch,
         ray_address=args.ray,
         progress=not args.quiet,
-        policy_kwargs={"device": args.device} if args.device != "cpu" else None,
+        policy_kwargs={"device": device} if device != "cpu" else None,
         **env_kwargs,
     )
     payload = evaluation.payload
     print_summary(payload, time.time() - start)
     write_json(args.json, payload)
     if args.traces:
-        print(f"wrote {write_traces(args.traces, family, evaluation.results)}")
+        from wirecraft.cli_args import atomic_path
+
+        with atomic_path(args.traces) as tmp:
+            write_traces(tmp, family, evaluation.results)
+        print(f"wrote {args.traces}")
     videos: dict[str, Path] = {}
     if args.video or args.report:
         from wirecraft.evaluation.video import record_episode

@@ -192,6 +192,7 @@ def train(
         raise ValueError(f"steps must be a positive integer, got {steps!r}")
     run_dir = Path(out)
     overrides = dict(overrides or {})
+    fresh = None  # a new run: whether run_dir had to be created
     if (run_dir / RUN_FILE).exists():
         if not resume:
             raise ValueError(
@@ -215,17 +216,23 @@ def train(
             )
         cfg = replace(config_class(algorithm)(), **overrides)
         _check_expert_control(algorithm, _task_family(task), env_kwargs or {}, cfg)
+        fresh = not run_dir.exists()
         run = _new_run(algorithm, _task_family(task), dict(env_kwargs or {}), cfg, run_dir)
     # One record per training session: a resumed run may continue on another machine.
     run.data.setdefault("provenance", []).append(
         provenance(threads=cfg.threads or os.cpu_count(), started=_now())
     )
     run.save()
-    with _terminate_as_interrupt():
-        if algorithm == "sacfd":
-            _train_sacfd(cfg, run, steps, progress)
-        else:
-            _train_ppo_family(cfg, run, steps, progress)
+    try:
+        with _terminate_as_interrupt():
+            if algorithm == "sacfd":
+                _train_sacfd(cfg, run, steps, progress)
+            else:
+                _train_ppo_family(cfg, run, steps, progress)
+    except Exception:
+        if fresh is not None and not any(run_dir.rglob("*.pt")):
+            _remove_failed_start(run_dir, fresh)
+        raise
     rows = ProgressTable(run_dir / "progress.csv").rows()
     return {
         "run_dir": str(run_dir),
@@ -235,6 +242,20 @@ def train(
         "latest_checkpoint": run.data["latest_checkpoint"],
         "last_progress": rows[-1] if rows else None,
     }
+
+
+def _remove_failed_start(run_dir: Path, created: bool) -> None:
+    """A new run that failed before saving anything learned: remove what it wrote, so that
+    the same command can run again."""
+    import shutil
+
+    for child in run_dir.iterdir():
+        if child.is_dir():
+            shutil.rmtree(child, ignore_errors=True)
+        else:
+            child.unlink(missing_ok=True)
+    if created:
+        run_dir.rmdir()
 
 
 @contextlib.contextmanager
