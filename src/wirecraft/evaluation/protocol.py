@@ -193,7 +193,10 @@ def _run_retention(config, venv, check, recorders) -> list[str | None]:
     for k in range(retention.STEPS):
         actions = np.stack([retention.retention_action(env, k) for env in envs])
         for i in np.flatnonzero(live):
-            retention.apply_pull(envs[i], k, config.retain_force)
+            if failure[i] is None:
+                retention.apply_pull(envs[i], k, config.retain_force)
+            else:
+                retention.clear_pull(envs[i])
         _, _, _, _, infos = venv.step(actions)
         for i in np.flatnonzero(live):
             info = _info_at(infos, i)
@@ -202,12 +205,8 @@ def _run_retention(config, venv, check, recorders) -> list[str | None]:
                 failure[i], live[i] = "diverged", False
                 continue
             recorders[i].add(diagnostics.measure(envs[i], info), retention.stage(k))
-            if k == retention.RELEASE_STEPS + retention.RETREAT_STEPS - 1 and not info["success"]:
-                failure[i] = "unseated_on_release"
-        if k == retention.STEPS - 1:
-            for i in np.flatnonzero(live):
-                if failure[i] is None and not _info_at(infos, i)["success"]:
-                    failure[i] = "pulled_out"
+            if failure[i] is None:
+                failure[i] = retention.failure_at(k, info["success"])
     for env in envs:
         retention.clear_pull(env)
     return failure

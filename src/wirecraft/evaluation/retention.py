@@ -11,10 +11,13 @@ After an episode whose task succeeded at its last step, the evaluation takes the
    ``RAMP_STEPS`` (0.1 s) so that the check measures holding, not an impact.  Routing and
    seating only wait (no pull).
 
-``retain_success``: the task's success still holds at the end (``success`` of its
-``evaluate``).  A failed check says why: ``unseated_on_release`` (lost before the pull),
-``pulled_out`` (lost during the pull) or ``diverged``; an episode that succeeded at some step
-but not at its last is ``lost_before_end`` (no check is run).
+``retain_success``: the task's success (``success`` of its ``evaluate``) holds at the end of
+the retreat and at every step after it.  A failed check says why: ``unseated_on_release``
+(lost by the end of the retreat), ``pulled_out`` (lost during the pull, or the wait) or
+``diverged``; an episode that succeeded at some step but not at its last is
+``lost_before_end`` (no check is run).  The pull on a plug stops the step it comes out:
+pulled on further, a free plug only flies off until the solver diverges, which would hide the
+verdict.
 """
 
 from __future__ import annotations
@@ -73,6 +76,15 @@ def clear_pull(env) -> None:
         env.data.xfrc_applied[env.task.assembly.plug_id] = 0.0
 
 
+def failure_at(k: int, success: bool) -> str | None:
+    """The check's verdict once retention step ``k`` is done: ``unseated_on_release`` when the
+    task has failed by the end of the retreat, ``pulled_out`` when it fails during the pull
+    (or the wait), else None (not failed yet)."""
+    if success or k < RELEASE_STEPS + RETREAT_STEPS - 1:
+        return None
+    return "unseated_on_release" if k == RELEASE_STEPS + RETREAT_STEPS - 1 else "pulled_out"
+
+
 def check_single(env, force: float = DEFAULT_FORCE) -> tuple[bool, str | None]:
     """Run the check on one ``WireCraftEnv`` from its current state (e.g. a constructed
     seated plug); returns (retained, failure reason or None)."""
@@ -80,14 +92,8 @@ def check_single(env, force: float = DEFAULT_FORCE) -> tuple[bool, str | None]:
     for k in range(STEPS):
         apply_pull(env, k, force)
         _, _, _, _, info = env.step(retention_action(env, k))
-        if info["diverged"]:
-            failure = "diverged"
+        failure = "diverged" if info["diverged"] else failure_at(k, info["success"])
+        if failure:
             break
-        if k == RELEASE_STEPS + RETREAT_STEPS - 1 and not info["success"]:
-            failure = "unseated_on_release"
-            break
-    else:
-        if not info["success"]:
-            failure = "pulled_out"
     clear_pull(env)
     return failure is None, failure

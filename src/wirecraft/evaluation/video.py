@@ -96,9 +96,14 @@ def record_episode(config, spec, summary: dict, path: str | Path) -> dict:
 
         Image.fromarray(last).save(Path(path).with_suffix(".png"))
         if not diverged and info["success"]:
+            failure = None
             for k in range(retention.STEPS):
-                retention.apply_pull(env, k, config.retain_force)
-                venv.step(retention.retention_action(env, k)[None])
+                if failure is None:
+                    retention.apply_pull(env, k, config.retain_force)
+                else:
+                    retention.clear_pull(env)
+                _, _, _, _, infos = venv.step(retention.retention_action(env, k)[None])
+                failure = failure or retention.failure_at(k, bool(_info_at(infos, 0)["success"]))
                 if k % FRAME_EVERY == 0:
                     stage = retention.stage(k)
                     if stage.endswith("pull") and config.task == "insertion":
