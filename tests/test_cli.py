@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 
+import mujoco
 import numpy as np
 import pytest
 from PIL import Image
@@ -13,6 +14,7 @@ from PIL import Image
 from wirecraft.assets.connectors import CONNECTORS
 from wirecraft.assets.wires import WIRE_MODELS
 from wirecraft.cli import COMMANDS, main
+from wirecraft.golden import golden_file_sha256
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
@@ -122,8 +124,12 @@ def test_demo_rejects_non_positive_duration(capsys):
 def test_bench_json_rows(tmp_path):
     path = tmp_path / "bench.json"
     assert main(["bench", "--wire", "articulated", "--seconds", "0.05", "--json", str(path)]) == 0
-    (row,) = json.loads(path.read_text())
+    written = json.loads(path.read_text())
+    (row,) = written["rows"]
     assert row["wire"] == "articulated" and row["physics_steps_per_s"] > 0
+    assert written["suite"] == "wires"
+    assert written["provenance"]["packages"]["mujoco"] == mujoco.__version__
+    assert written["provenance"]["golden_sha256"] == golden_file_sha256()
     assert row["realtime_factor"] == pytest.approx(row["physics_steps_per_s"] * 0.002, rel=0.01)
 
 
@@ -156,7 +162,7 @@ def test_bench_envs_rows_csv_and_plot(tmp_path):
         )
         == 0
     )
-    (row,) = json.loads(path.read_text())
+    (row,) = json.loads(path.read_text())["rows"]
     for key in (
         "task",
         "wire",

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import wirecraft
-from wirecraft import cli
+from wirecraft import cli, golden
 from wirecraft.evaluation import command, protocol, retention, seeds
 from wirecraft.evaluation.policies import (
     RandomPolicy,
@@ -100,7 +100,10 @@ def _scripted(**kw):
 
 @pytest.mark.slow
 def test_scripted_evaluation_reproduces_its_json_across_runs_and_worker_counts():
-    first = json.dumps(_scripted(), sort_keys=True)
+    def episodes_part(payload) -> str:  # provenance names the worker count
+        return json.dumps({k: v for k, v in payload.items() if k != "provenance"}, sort_keys=True)
+
+    first = episodes_part(_scripted())
     payload = json.loads(first)
     assert set(payload["metrics"]) >= {
         "success",
@@ -113,9 +116,9 @@ def test_scripted_evaluation_reproduces_its_json_across_runs_and_worker_counts()
     for episode in payload["episodes"]:
         assert episode["steps"] == 360
         assert (episode["failure"] is None) == episode["success"]
-    assert json.dumps(_scripted(), sort_keys=True) == first
+    assert episodes_part(_scripted()) == first
     # Two worker processes, one episode each (batch 1 instead of 2): the same document.
-    assert json.dumps(_scripted(workers=2), sort_keys=True) == first
+    assert episodes_part(_scripted(workers=2)) == first
 
 
 def test_an_episode_does_not_depend_on_its_slot_in_a_batch():
@@ -227,6 +230,8 @@ def test_eval_command_writes_the_json_document(tmp_path, capsys):
     assert payload["protocol"]["reset_seeds"] == [
         row[:1] for row in seeds.frozen_lists()[payload["variant"]][:2]
     ]
+    assert payload["provenance"]["threads"] == 1
+    assert payload["provenance"]["benchmark_version"] == golden.load_golden()["benchmark_version"]
     assert "success" in capsys.readouterr().out
 
 

@@ -365,7 +365,9 @@ def cmd_bench(args) -> int:
         with atomic_path(out / "bench_envs.png") as tmp:
             envs.plot(rows, tmp)
         print(f"wrote {out}/bench_envs.csv and {out}/bench_envs.png")
-    write_json(args.json, rows)
+    from wirecraft.provenance import provenance
+
+    write_json(args.json, {"suite": args.suite, "rows": rows, "provenance": provenance()})
     return 0
 
 

@@ -39,6 +39,7 @@ from wirecraft.evaluation.seeds import (
     episode_seeds,
     variant_key,
 )
+from wirecraft.provenance import provenance
 
 METRICS = {
     "insertion": ("success", "reach_success", "insert_success", "retain_success", "success_at_end"),
@@ -479,6 +480,7 @@ def run_evaluation(
         "failures": dict(sorted(failures.items())),
         "failure_labels": diagnostics.labels_for(family),
         "episodes": episodes_json,
+        "provenance": provenance(threads=workers, ray_address=ray_address, batch=batch),
     }
     return EvaluationRun(payload=payload, results=results, config=config)
 
