@@ -33,17 +33,23 @@ CHECKPOINT_EVERY = 60
 SEED = 7
 
 # name -> (task family, environment keywords). Every family with every wire model, each robot in
-# every family once.
+# every family once, and the task options spread over the cells.
 CELLS: dict[str, tuple[str, dict]] = {
-    "insertion/articulated/ur5": ("insertion", {"wire": "articulated", "robot": "ur5"}),
-    "insertion/rod/panda": ("insertion", {"wire": "rod", "robot": "panda"}),
-    "insertion/fem/wxai": ("insertion", {"wire": "fem", "robot": "wxai"}),
-    "routing/articulated/panda": ("routing", {"wire": "articulated", "robot": "panda"}),
-    "routing/rod/wxai": ("routing", {"wire": "rod", "robot": "wxai"}),
-    "routing/fem/ur5": ("routing", {"wire": "fem", "robot": "ur5"}),
-    "seating/articulated/wxai": ("seating", {"wire": "articulated", "robot": "wxai"}),
-    "seating/rod/ur5": ("seating", {"wire": "rod", "robot": "ur5"}),
-    "seating/fem/panda": ("seating", {"wire": "fem", "robot": "panda"}),
+    "insertion/articulated/ur5/ethernet": ("insertion", {"wire": "articulated", "robot": "ur5"}),
+    "insertion/rod/panda/displayport": (
+        "insertion",
+        {"wire": "rod", "robot": "panda", "connector": "displayport"},
+    ),
+    "insertion/fem/wxai/usb_a": (
+        "insertion",
+        {"wire": "fem", "robot": "wxai", "connector": "usb_a"},
+    ),
+    "routing/articulated/panda/1clip": ("routing", {"wire": "articulated", "robot": "panda"}),
+    "routing/rod/wxai/2clips": ("routing", {"wire": "rod", "robot": "wxai", "num_clips": 2}),
+    "routing/fem/ur5/3clips": ("routing", {"wire": "fem", "robot": "ur5", "num_clips": 3}),
+    "seating/articulated/wxai/straight": ("seating", {"wire": "articulated", "robot": "wxai"}),
+    "seating/rod/ur5/curved": ("seating", {"wire": "rod", "robot": "ur5", "channel": "curved"}),
+    "seating/fem/panda/curved": ("seating", {"wire": "fem", "robot": "panda", "channel": "curved"}),
 }
 
 
