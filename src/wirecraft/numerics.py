@@ -29,38 +29,42 @@ import mujoco
 import numpy as np
 
 
+def _sum_last(products: np.ndarray) -> np.ndarray:
+    total = products[..., 0]
+    for k in range(1, products.shape[-1]):
+        total = total + products[..., k]
+    return total
+
+
 def dot(a, b) -> np.ndarray | float:
     """Inner product over the last axis, summed left to right. Scalars for 1-D inputs."""
-    a = np.asarray(a, dtype=float)
-    b = np.asarray(b, dtype=float)
-    total = a[..., 0] * b[..., 0]
-    for k in range(1, a.shape[-1]):
-        total = total + a[..., k] * b[..., k]
-    return float(total) if np.ndim(total) == 0 else total
+    total = _sum_last(np.asarray(a, dtype=float) * np.asarray(b, dtype=float))
+    return float(total) if total.ndim == 0 else total
 
 
 def norm(x, axis: int = -1, keepdims: bool = False) -> np.ndarray | float:
     """Euclidean norm over ``axis`` (default: the last), summed in index order."""
-    x = np.moveaxis(np.asarray(x, dtype=float), axis, -1)
-    length = np.sqrt(dot(x, x))
+    x = np.asarray(x, dtype=float)
+    if axis not in (-1, x.ndim - 1):
+        x = np.moveaxis(x, axis, -1)
+    length = np.sqrt(_sum_last(x * x))
     if keepdims:
         length = np.expand_dims(length, axis)
-    return float(length) if np.ndim(length) == 0 else length
+    return float(length) if length.ndim == 0 else length
 
 
 def matmul(a, b) -> np.ndarray:
     """``a @ b`` with numpy's rules for 1-D operands and stacked (batched) matrices."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
-    if a.ndim == 1 and b.ndim == 1:
-        return dot(a, b)
-    if b.ndim == 1:  # (..., m, k) @ (k,) -> (..., m)
+    if b.ndim == 1:  # (..., m, k) @ (k,) -> (..., m); (k,) @ (k,) -> scalar
         return dot(a, b)
     if a.ndim == 1:  # (k,) @ (..., k, n) -> (..., n)
         return dot(np.swapaxes(b, -1, -2), a)
-    total = a[..., :, 0, None] * b[..., None, 0, :]
+    products = a[..., :, :, None] * b[..., None, :, :]  # (..., m, k, n)
+    total = products[..., :, 0, :]
     for k in range(1, a.shape[-1]):
-        total = total + a[..., :, k, None] * b[..., None, k, :]
+        total = total + products[..., :, k, :]
     return total
 
 
@@ -88,10 +92,13 @@ def solve_spd(a, b) -> np.ndarray:
 
 
 def _elementwise(function, *args) -> np.ndarray | float:
-    arrays = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in args))
+    if all(isinstance(a, int | float) for a in args):
+        return function(*args)
+    arrays = [np.asarray(a, dtype=float) for a in args]
+    if any(a.shape != arrays[0].shape for a in arrays):
+        arrays = np.broadcast_arrays(*arrays)
     shape = arrays[0].shape
-    values = map(function, *(a.ravel().tolist() for a in arrays))
-    out = np.fromiter(values, dtype=float, count=arrays[0].size)
+    out = np.array(list(map(function, *(a.ravel().tolist() for a in arrays))), dtype=float)
     return float(out[0]) if not shape else out.reshape(shape)
 
 
