@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from wirecraft.cli import main
@@ -405,3 +406,18 @@ def test_mujoco_warnings_write_no_log_file(tmp_path, hooked):
     assert (tmp_path / "MUJOCO_LOG.TXT").exists() != hooked
     if hooked:
         assert "Nan, Inf or huge value in QPOS" in result.stderr
+
+
+def test_a_video_is_published_only_when_complete(tmp_path):
+    from wirecraft.video import VideoWriter, write_mp4
+
+    frames = np.zeros((3, 16, 16, 3), np.uint8)
+    assert write_mp4(frames, tmp_path / "ok.mp4", 10).stat().st_size > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.mp4"]
+    writer = VideoWriter(tmp_path / "broken.mp4", 16, 16, 10)
+    writer.add(frames[0])
+    assert not (tmp_path / "broken.mp4").exists()  # frames go to broken.mp4.partial
+    writer.discard()
+    with pytest.raises(ValueError):
+        write_mp4(np.zeros((2, 16, 16)), tmp_path / "bad.mp4", 10)  # not RGB
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.mp4"]

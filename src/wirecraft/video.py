@@ -3,6 +3,7 @@ evaluation's videos."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -21,14 +22,17 @@ def _codec() -> str:
 
 
 class VideoWriter:
-    """Frames (H, W, 3 uint8) to an MP4 file."""
+    """Frames (H, W, 3 uint8) to an MP4 file. The frames go to ``PATH.partial`` first, which
+    ``close`` renames to ``PATH`` and ``discard`` removes: a crash never leaves half a video
+    under the real name."""
 
     def __init__(self, path: str | Path, width: int, height: int, fps: int) -> None:
         import av
 
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.container = av.open(str(self.path), mode="w")
+        self.partial = self.path.with_name(self.path.name + ".partial")
+        self.container = av.open(str(self.partial), mode="w", format="mp4")
         codec = _codec()
         self.stream = self.container.add_stream(codec, rate=fps)
         self.stream.width, self.stream.height = width, height
@@ -47,6 +51,11 @@ class VideoWriter:
         for packet in self.stream.encode():
             self.container.mux(packet)
         self.container.close()
+        os.replace(self.partial, self.path)
+
+    def discard(self) -> None:
+        self.container.close()
+        self.partial.unlink(missing_ok=True)
 
 
 def write_mp4(frames, path: str | Path, fps: int) -> Path:
@@ -56,6 +65,8 @@ def write_mp4(frames, path: str | Path, fps: int) -> Path:
     try:
         for frame in frames:
             writer.add(frame)
-    finally:
-        writer.close()
+    except BaseException:
+        writer.discard()
+        raise
+    writer.close()
     return writer.path

@@ -110,8 +110,12 @@ def record_episode(config, spec, summary: dict, path: str | Path) -> dict:
                         stage += f" {config.retain_force:g} N"
                     writer.add(frame(config.horizon + k + 1, stage))
             retention.clear_pull(env)
-    finally:
+    except BaseException:
+        writer.discard()
+        raise
+    else:
         writer.close()
+    finally:
         side.close()
         wrist.close()
     return {"success": success, "matches": success == bool(summary["success"])}
