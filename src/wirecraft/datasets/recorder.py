@@ -172,19 +172,36 @@ class EpisodeRecorder:
         import time
 
         env = self.env
-        model, data, robot = env.model, env.data, env.robot
-        self._states.append(robot.dataset_state(model, data))
-        self._cartesian.append(schema.cartesian_state(robot, model, data))
+        self._states.append(frame_state(env))
+        self._cartesian.append(schema.cartesian_state(env.robot, env.model, env.data))
         for flag in self.flag_names:
             self._flags[flag].append(bool(info[flag]))
         self._last_success = bool(info["success"])
         tic, cpu = time.perf_counter(), time.process_time()
         if self._renderer is None:
-            from wirecraft.render import FastRenderer
-
-            # The renderer the environment's own image observations use, same size.
-            self._renderer = FastRenderer(model, env.image_size, env.image_size)
-        for camera, name in (("side", robot.side_camera), ("wrist", robot.wrist_camera)):
-            self._images[camera].append(self._renderer.render(data, name))
+            self._renderer = frame_renderer(env)
+        for camera, image in frame_images(env, self._renderer).items():
+            self._images[camera].append(image)
         self.render_seconds += time.perf_counter() - tic
         self.render_cpu_seconds += time.process_time() - cpu
+
+
+# A frame's observation, shared with whatever must observe a running environment the way a
+# dataset frame does (the LeRobot environment plug-in, plugins/lerobot_env_wirecraft).
+def frame_state(env) -> np.ndarray:
+    """``observation.state`` of the (unwrapped) environment's current state, (dof + 1,)."""
+    return env.robot.dataset_state(env.model, env.data)
+
+
+def frame_renderer(env):
+    """The renderer the environment's own image observations use, at its image size."""
+    from wirecraft.render import FastRenderer
+
+    return FastRenderer(env.model, env.image_size, env.image_size)
+
+
+def frame_images(env, renderer) -> dict[str, np.ndarray]:
+    """Camera name (``schema.CAMERAS``) -> the (H, W, 3) uint8 image of the current state."""
+    robot = env.robot
+    names = {"side": robot.side_camera, "wrist": robot.wrist_camera}
+    return {camera: renderer.render(env.data, names[camera]) for camera in schema.CAMERAS}
