@@ -571,11 +571,13 @@ def test_render_none_returns_none():
 
 
 def test_dict_observation_carries_the_sensors():
-    """Image modes also observe fingertip contact, grasp and fixture force, the wrist wrench and
-    the instruction; the wrist force at rest is the gripper's weight."""
+    """Image modes also observe fingertip contact, grasp and fixture force and the wrist wrench
+    (the instruction is in info and ``task_description``, not in the observation); the wrist
+    force at rest is the gripper's weight."""
     env = wirecraft.make("insertion", obs_mode="rgb", image_size=32)
     obs, info = env.reset(seed=0)
-    assert obs["instruction"] == info["instruction"]
+    assert "instruction" not in obs
+    assert info["instruction"] == env.unwrapped.task_description
     assert obs["fingertip_contact"].tolist() == [0.0, 0.0]  # nothing held yet
     assert obs["grasp_force"][0] == 0.0
     model = env.unwrapped.model

@@ -30,11 +30,18 @@ TASK_IDS = {
 }
 EPISODE_STEPS = 480  # 8 s at 60 Hz
 
+# The registered specs leave max_episode_steps None: the length depends on the keywords
+# (episode_seconds, max_episode_steps, routing's num_clips), and the environment keeps it itself,
+# so that no TimeLimit wrapper with another length sits on top.  A made environment's
+# env.spec.max_episode_steps is its length (480 by default); gymnasium.make(id,
+# max_episode_steps=N) sets it.  gymnasium.make_vec(id, n, **kwargs) builds make_vec's
+# batched vector environment (the vector entry point, gymnasium's default where there is one).
 for _task, _id in TASK_IDS.items():
     if _id not in gym.registry:
         gym.register(
             id=_id,
             entry_point="wirecraft.envs:WireCraftEnv",
+            vector_entry_point="wirecraft:vector_entry_point",
             kwargs={"task": _task},
             disable_env_checker=True,
         )
@@ -101,4 +108,10 @@ def make_vec(
     return env
 
 
-__all__ = ["ARRAY_TYPES", "BACKENDS", "TASK_IDS", "make", "make_vec"]
+def vector_entry_point(num_envs: int, task: str, **kwargs):
+    """``gymnasium.make_vec(id, num_envs, **kwargs)``'s builder (``vectorization_mode``
+    ``"vector_entry_point"``, the default for these ids): ``make_vec(task, num_envs, **kwargs)``."""
+    return make_vec(task, num_envs, **kwargs)
+
+
+__all__ = ["ARRAY_TYPES", "BACKENDS", "TASK_IDS", "make", "make_vec", "vector_entry_point"]

@@ -3,6 +3,8 @@
 Timing: physics at 1/480 s, 8 substeps per control step: exactly 60 Hz; an 8 s episode is 480
 control steps (the default; routing gets 8 s per clip, see ``Task.episode_seconds``).
 (1/480 s is within 5% of the 2 ms at which the wire physics was validated.)
+``episode_seconds=`` or ``max_episode_steps=`` (also ``gymnasium.make``'s) sets the length:
+``max_steps``, which ``env.spec.max_episode_steps`` reports.
 
 Divergence: after every control step the state is checked (finite; linear and angular speeds
 below ``MAX_LINEAR_SPEED`` and ``MAX_ANGULAR_SPEED``); a diverged step is rolled back to the
@@ -18,7 +20,9 @@ naming the field.
 from __future__ import annotations
 
 import copy
-import string
+import os
+import sys
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -44,7 +48,6 @@ MAX_LINEAR_SPEED = 20.0  # m/s
 MAX_ANGULAR_SPEED = 2000.0  # rad/s
 STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 RESET_ATTEMPTS = 3
-INSTRUCTION_LENGTH = 200  # characters
 MAX_IMAGE_SIZE = min(OFFSCREEN_WIDTH, OFFSCREEN_HEIGHT)  # square images in the framebuffer
 
 
@@ -77,6 +80,45 @@ def _add_wrist_sensor(spec: mujoco.MjSpec, hand_body: str) -> None:
         ("wrist_torque", mujoco.mjtSensor.mjSENS_TORQUE),
     ):
         spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="wrist_ft")
+
+
+NO_DISPLAY = (
+    "render_mode='human' opens MuJoCo's viewer, which needs a display: {reason}. Run with a "
+    "display (set DISPLAY, or run under a virtual one: xvfb-run -a python ...), or render "
+    "off-screen with render_mode='rgb_array' and MUJOCO_GL=egl"
+)
+
+
+def check_display() -> None:
+    """Raise RuntimeError, naming the fix, where MuJoCo's viewer could not open a window
+    (it would print "could not initialize GLFW" and end the process)."""
+    if sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    ):
+        raise RuntimeError(NO_DISPLAY.format(reason="DISPLAY is not set"))
+    try:
+        import glfw
+    except ImportError as err:
+        raise RuntimeError(NO_DISPLAY.format(reason=f"GLFW is not available ({err})")) from None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # glfw warns of the failure too; the error says it
+        ok = glfw.init()
+    if not ok:
+        display = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+        raise RuntimeError(
+            NO_DISPLAY.format(reason=f"GLFW could not initialize on display {display!r}")
+        )
+
+
+def _gym_make_max_episode_steps(frame) -> int | None:
+    """The ``max_episode_steps`` argument of the ``gymnasium.make`` call running in ``frame``
+    (None if ``frame`` is not ``gymnasium.make``, or it was not given or was -1)."""
+    from gymnasium.envs import registration
+
+    if frame is None or frame.f_code is not registration.make.__code__:
+        return None
+    steps = frame.f_locals.get("max_episode_steps")
+    return None if steps is None or steps == -1 else steps
 
 
 def default_episode_seconds(task: str, **env_kwargs: Any) -> float:
@@ -127,6 +169,7 @@ class WireCraftEnv(gym.Env):
         image_size: int = 224,
         render_mode: str | None = None,
         episode_seconds: float | None = None,
+        max_episode_steps: int | None = None,
         wire_config: WireConfig | None = None,
         diagnostics: bool = True,
         **task_kwargs: Any,
@@ -154,6 +197,8 @@ class WireCraftEnv(gym.Env):
                     f"WireCraftEnv.episode_seconds must be at least one control step "
                     f"(1/{CONTROL_HZ} s), got {episode_seconds!r}"
                 )
+        if render_mode == "human":
+            check_display()
         if wire_config is not None and not isinstance(wire_config, WireConfig):
             raise ValueError(
                 f"WireCraftEnv.wire_config must be a WireConfig or None, got {wire_config!r}"
@@ -164,9 +209,13 @@ class WireCraftEnv(gym.Env):
             raise ValueError(f"{task}: invalid keyword argument: {err}") from None
         self.robot_name, self.wire_name, self.control_name = robot, wire, control
         self.obs_mode, self.image_size, self.render_mode = obs_mode, image_size, render_mode
+        self._episode_seconds = episode_seconds  # as given (None: the task's default)
         if episode_seconds is None:
             episode_seconds = self.task.episode_seconds
         self.max_steps = int(round(episode_seconds * CONTROL_HZ))
+        self._spec = None
+        if max_episode_steps is not None:
+            self.set_max_episode_steps(max_episode_steps)
         # False: info leaves out the force and cable diagnostics (per-environment contact
         # walks that RL training never reads; the vector environment is faster without them).
         self.diagnostics = bool(diagnostics)
@@ -198,6 +247,51 @@ class WireCraftEnv(gym.Env):
         self.action_space = gym.spaces.Box(-1.0, 1.0, (self.controller.action_dim,), np.float32)
         self.observation_space = self._make_observation_space()
 
+    # -- episode length and gymnasium's spec -------------------------------------------------
+    def set_max_episode_steps(self, steps: int) -> None:
+        """End episodes after ``steps`` control steps (``truncated``), instead of the
+        ``episode_seconds`` default; an ``episode_seconds`` given as well must agree."""
+        steps = validation.at_least_int("WireCraftEnv", "max_episode_steps", steps, 1)
+        if self._episode_seconds is not None and steps != self.max_steps:
+            raise ValueError(
+                f"WireCraftEnv: episode_seconds={self._episode_seconds!r} ({self.max_steps} "
+                f"control steps at {CONTROL_HZ} Hz) and max_episode_steps={steps} disagree; "
+                "give one of them"
+            )
+        self.max_steps = steps
+
+    @property
+    def spec(self):
+        """gymnasium's ``EnvSpec`` of this environment (set by ``gymnasium.make``), its
+        ``max_episode_steps`` this environment's episode length (``max_steps``)."""
+        spec = self.__dict__.get("_spec")
+        if spec is None or spec.max_episode_steps == self.max_steps:
+            return spec
+        spec = copy.copy(spec)
+        spec.max_episode_steps = self.max_steps
+        return spec
+
+    @spec.setter
+    def spec(self, spec) -> None:
+        # gymnasium.make(id, max_episode_steps=N) keeps N for its TimeLimit wrapper and sets
+        # the spec right after building the environment: the episode then lasts N steps here
+        # too (else this environment's own limit would truncate first).
+        steps = _gym_make_max_episode_steps(sys._getframe(1))
+        if steps is not None:
+            self.set_max_episode_steps(steps)
+        self._spec = spec
+
+    @property
+    def task_description(self) -> str:
+        """The episode's language instruction (also ``info["instruction"]`` at reset and at
+        every step)."""
+        return self.task.instruction
+
+    @property
+    def _max_episode_steps(self) -> int:
+        """``max_steps``, under the name LeRobot's evaluation reads."""
+        return self.max_steps
+
     # -- spaces -----------------------------------------------------------------------------
     def _make_observation_space(self) -> gym.Space:
         state_dim = self.task.privileged_state(self.model, self.data).size
@@ -217,7 +311,6 @@ class WireCraftEnv(gym.Env):
             "grasp_force": gym.spaces.Box(0.0, np.inf, (1,), np.float64),
             "fixture_force": gym.spaces.Box(0.0, np.inf, (1,), np.float64),
             "wrist_wrench": vector(6),
-            "instruction": gym.spaces.Text(INSTRUCTION_LENGTH, charset=string.printable),
         }
         if self.obs_mode == "rgbd":
             spaces["depth_side"] = gym.spaces.Box(0, np.inf, (size, size, 1), np.float32)
@@ -357,6 +450,7 @@ class WireCraftEnv(gym.Env):
         weighted, total = weighted_reward(terms, self.task.weights)
         reward = float(total)
         info = {
+            "instruction": self.task.instruction,
             **self.task.evaluate(model, data, self.diagnostics),
             "diverged": False,
             **{f"reward/{k}": float(v) for k, v in weighted.items()},
@@ -391,6 +485,7 @@ class WireCraftEnv(gym.Env):
 
     def _info_without_reward(self) -> dict:
         return {
+            "instruction": self.task.instruction,
             **self.task.evaluate(self.model, self.data, self.diagnostics),
             **{f"reward/{k}": 0.0 for k in self.task.weights},
         }
@@ -407,7 +502,6 @@ class WireCraftEnv(gym.Env):
             "proprio": self.robot.proprioception(self.model, self.data),
             **self.task.sensing(self.model, self.data),
             "wrist_wrench": self.wrist_wrench(),
-            "instruction": self.task.instruction,
         }
         depth = self.obs_mode == "rgbd"
         for camera, key in ((self.robot.side_camera, "side"), (self.robot.wrist_camera, "wrist")):

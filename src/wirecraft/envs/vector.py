@@ -32,6 +32,7 @@ diverged environment is rolled back, flagged (``diverged``) and reset while the 
 
 from __future__ import annotations
 
+import copy
 import os
 
 import gymnasium as gym
@@ -117,8 +118,7 @@ class WireCraftVectorEnv(VectorEnv):
         self.render_mode = first.render_mode
         self._obs = create_empty_array(self.single_observation_space, num_envs)
         self._needs_reset = np.ones(num_envs, bool)
-        if isinstance(self._obs, dict):  # text (the instruction) batches as a tuple: fill a list
-            self._obs = {k: list(v) if isinstance(v, tuple) else v for k, v in self._obs.items()}
+        self._spec = None
         possible = first.task.batched and first.obs_mode == "state"
         if batched and not possible:
             raise ValueError(
@@ -235,10 +235,46 @@ class WireCraftVectorEnv(VectorEnv):
             self._load_rows(ids)
         obs = self._obs_copy()
         if isinstance(obs, dict):
-            return {
-                k: [v[i] for i in ids] if isinstance(v, tuple) else v[ids] for k, v in obs.items()
-            }
+            return {k: v[ids] for k, v in obs.items()}
         return obs[ids]
+
+    # -- attributes of the environments -----------------------------------------------------
+    @property
+    def spec(self):
+        """gymnasium's ``EnvSpec`` (set by ``gymnasium.make_vec``), its ``max_episode_steps``
+        the environments' episode length."""
+        spec = self._spec
+        steps = self.envs[0].max_steps
+        if spec is None or spec.max_episode_steps == steps:
+            return spec
+        spec = copy.copy(spec)
+        spec.max_episode_steps = steps
+        return spec
+
+    @spec.setter
+    def spec(self, spec) -> None:
+        self._spec = spec
+
+    @property
+    def task_description(self) -> tuple[str, ...]:
+        """Each environment's language instruction (also ``infos["instruction"]``)."""
+        return tuple(env.task_description for env in self.envs)
+
+    def call(self, name: str, *args, **kwargs) -> tuple:
+        """Each environment's attribute ``name``, called with ``args`` where it is a method (as
+        gymnasium's SyncVectorEnv.call; e.g. ``call("task_description")``)."""
+        if self.batched and not self.sync_envs:
+            for i in range(self.num_envs):
+                self._sync_env(i)
+        results = []
+        for env in self.envs:
+            value = getattr(env, name)
+            results.append(value(*args, **kwargs) if callable(value) else value)
+        return tuple(results)
+
+    def get_attr(self, name: str) -> tuple:
+        """Each environment's attribute ``name``."""
+        return tuple(getattr(env, name) for env in self.envs)
 
     def _check_open(self, call: str) -> None:
         if self.closed:
@@ -338,6 +374,7 @@ class WireCraftVectorEnv(VectorEnv):
             self._sync_env(i, data_of)
 
         infos: dict = {name: np.array(values) for name, values in core.items()}
+        infos["instruction"] = np.array([env.task.instruction for env in self.envs], object)
         if first.diagnostics:
             rows = [env.task.diagnostics(self.model, data_of(i)) for i, env in enumerate(self.envs)]
             for name in rows[0]:
@@ -358,7 +395,7 @@ class WireCraftVectorEnv(VectorEnv):
         truncations = (self.steps >= first.max_steps) | bad
         done = np.flatnonzero(truncations)
         for i in done:  # SAME_STEP autoreset: report the final step, start the next episode
-            final_info = {name: infos[name][i].item() for name in step_keys}
+            final_info = {name: _item(infos[name][i]) for name in step_keys}
             infos = self._add_info(infos, {"final_obs": obs[i].copy(), "final_info": final_info}, i)
         for i, (new_obs, reset_info) in self._reset_envs(done).items():
             obs[i] = new_obs
@@ -485,13 +522,14 @@ class WireCraftVectorEnv(VectorEnv):
         time when every environment reports the same scalar keys (the usual step), instead of
         one environment at a time (``_add_info``, kept for everything else)."""
         first = step_infos[0]
-        scalar = (bool, int, float, np.number)
+        scalar = (bool, int, float, np.number, str)
         if all(info.keys() == first.keys() for info in step_infos) and all(
             isinstance(v, scalar) for v in first.values()
         ):
             everyone = np.ones(self.num_envs, bool)
             for key, value in first.items():
-                infos[key] = np.array([info[key] for info in step_infos], dtype=type(value))
+                dtype = object if isinstance(value, str) else type(value)
+                infos[key] = np.array([info[key] for info in step_infos], dtype=dtype)
                 infos[f"_{key}"] = everyone.copy()
             return infos
         for i, info in enumerate(step_infos):
@@ -507,15 +545,21 @@ class WireCraftVectorEnv(VectorEnv):
 
     def _obs_copy(self):
         if isinstance(self._obs, dict):
-            return {k: tuple(v) if isinstance(v, list) else v.copy() for k, v in self._obs.items()}
+            return {k: v.copy() for k, v in self._obs.items()}
         return self._obs.copy()
+
+
+def _item(value):
+    """A plain Python value of one environment's entry of a batched info array."""
+    return value.item() if isinstance(value, np.generic) else value
 
 
 class TorchArrays(VectorWrapper):
     """Observations, rewards, terminations and truncations as torch tensors; actions may be
     tensors.  On the CPU the tensors share memory with the arrays the environment returned
     (``torch.from_numpy``), so nothing is copied.  Infos stay numpy: they hold flags and
-    strings that tensors cannot (gymnasium's own NumpyToTorch fails on them)."""
+    strings (the instruction) that tensors cannot (gymnasium's own NumpyToTorch fails on
+    them)."""
 
     def __init__(self, env: VectorEnv, device=None) -> None:
         try:
@@ -528,12 +572,22 @@ class TorchArrays(VectorWrapper):
         self._torch = torch
         self.device = torch.device(device) if device is not None else torch.device("cpu")
 
+    @property
+    def task_description(self) -> tuple[str, ...]:
+        return self.env.task_description
+
+    def call(self, name: str, *args, **kwargs) -> tuple:
+        return self.env.call(name, *args, **kwargs)
+
+    def get_attr(self, name: str) -> tuple:
+        return self.env.get_attr(name)
+
     def _tensor(self, value):
         if isinstance(value, dict):
             return {k: self._tensor(v) for k, v in value.items()}
         if isinstance(value, np.ndarray):
             return self._torch.from_numpy(value).to(self.device)
-        return value  # text (the instruction) stays a tuple of strings
+        return value
 
     def reset(self, *, seed=None, options=None):
         obs, infos = self.env.reset(seed=seed, options=options)
