@@ -194,7 +194,7 @@ class LeRobotPolicy:
             images = np.asarray(obs[LEROBOT_CAMERAS[key.split(".")[-1]]])
             tensor = torch.as_tensor(images).permute(0, 3, 1, 2).float() / 255.0
             batch[key] = tensor
-        batch["task"] = [str(t) for t in obs["instruction"]]
+        batch["task"] = [env.task_description for env in self.envs]
         return batch
 
     def act(self, obs) -> np.ndarray:
