@@ -2,14 +2,25 @@
 
 from __future__ import annotations
 
+import json
+import shutil
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
 import wirecraft
 from wirecraft.evaluation import protocol
-from wirecraft.evaluation.policies import joint_action, load_policy, policy_env_kwargs
+from wirecraft.evaluation.policies import (
+    checkpoint_fps,
+    joint_action,
+    load_policy,
+    policy_env_kwargs,
+)
 
 IMAGE = 32
+FPS = 30
 
 
 def test_joint_action_moves_the_servo_targets_toward_absolute_targets():
@@ -72,6 +83,13 @@ def tiny_act(tmp_path_factory):
     folder = tmp_path_factory.mktemp("act")
     for part in (policy, pre, post):
         part.save_pretrained(folder)
+    # What lerobot-train writes beside them: the training run's settings, naming the dataset
+    # (here a stand-in holding only the metadata the adapter reads: its frame rate).
+    dataset = tmp_path_factory.mktemp("dataset")
+    (dataset / "meta").mkdir()
+    (dataset / "meta" / "info.json").write_text(json.dumps({"fps": FPS}))
+    train = {"dataset": {"repo_id": "wirecraft/local", "root": str(dataset)}, "env": None}
+    (folder / "train_config.json").write_text(json.dumps(train))
     return folder
 
 
@@ -100,3 +118,66 @@ def test_a_saved_lerobot_policy_drives_joint_controlled_environments(tiny_act):
     )
     assert payload["env_kwargs"]["control"] == "joint"
     assert payload["episodes"][0]["failure"] == "no_grasp"
+
+
+def test_the_frame_rate_comes_from_the_checkpoints_training_dataset(tiny_act, tmp_path):
+    assert checkpoint_fps(tiny_act) == FPS
+    bare = tmp_path / "bare"
+    shutil.copytree(tiny_act, bare)
+    (bare / "train_config.json").unlink()
+    assert checkpoint_fps(bare) is None
+    # A dataset no longer on this machine: the training environment's rate, if it had one.
+    train = {"dataset": {"repo_id": "someone/gone", "root": str(tmp_path / "gone")}}
+    (bare / "train_config.json").write_text(json.dumps({**train, "env": {"fps": 15}}))
+    assert checkpoint_fps(bare) == 15
+    (bare / "train_config.json").write_text(json.dumps({**train, "env": None}))
+    assert checkpoint_fps(bare) is None
+    venv = wirecraft.make_vec(
+        "insertion", 1, threads=1, control="joint", obs_mode="state_rgb", image_size=IMAGE
+    )
+    with pytest.raises(ValueError, match=r"frame rate .* fps=\.\.\. \(wirecraft eval --fps N"):
+        load_policy(str(bare), venv)
+    assert load_policy(str(bare), venv, fps=20).steps_per_frame == 3
+    with pytest.raises(ValueError, match="must divide the 60 Hz"):
+        load_policy(str(bare), venv, fps=7)
+    venv.close()
+
+
+@pytest.mark.slow
+def test_the_policy_is_queried_once_per_frame_and_its_actions_held(tiny_act):
+    venv = wirecraft.make_vec(
+        "insertion", 2, threads=1, control="joint", obs_mode="state_rgb", image_size=IMAGE
+    )
+    obs, _ = venv.reset(seed=[1, 2])
+    policy = load_policy(str(tiny_act), venv)
+    assert policy.fps == FPS and policy.steps_per_frame == 2
+    calls = []
+    select = policy.policy.select_action
+    policy.policy.select_action = lambda batch: calls.append(1) or select(batch)
+    policy.reset()
+    for step in range(8):
+        if step % 2:  # between frames the observation is not read
+            obs = {key: None for key in obs}
+        actions = policy.act(obs)
+        assert actions.shape == (2, 7) and np.all(np.abs(actions) <= 1.0)
+        obs, *_ = venv.step(actions)
+        # the targets approached during a frame are the frame's action
+        assert policy._targets.shape == (2, 7)
+    assert len(calls) == 4  # one query per frame: an action chunk plays at recorded speed
+    venv.close()
+
+
+def test_importing_the_modules_that_load_lerobot_prints_no_traceback(tmp_path):
+    """lerobot looks for torchcodec whenever it picks a default video backend; without the
+    system's FFmpeg libraries it used to log ~100 lines of loading traceback."""
+    pytest.importorskip("lerobot")
+    code = (
+        "import wirecraft.datasets.writer, wirecraft.datasets.encoding\n"
+        "import wirecraft.evaluation.policies\n"
+        "from lerobot.configs.default import DatasetConfig\n"
+        "from lerobot.utils.import_utils import get_safe_default_video_backend\n"
+        "print(get_safe_default_video_backend(), DatasetConfig(repo_id='x').video_backend)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert "Traceback" not in out.stderr and "torchcodec" not in out.stderr, out.stderr[:2000]
+    assert out.stdout.split()[0] in ("pyav", "torchcodec")

@@ -40,6 +40,7 @@ import numpy as np
 
 from wirecraft.datasets import schema
 from wirecraft.datasets.recorder import Episode, EpisodeRecorder
+from wirecraft.torch_threads import DEFAULT_TORCH_THREADS, set_torch_threads
 
 SETTINGS_FILE = "meta/wirecraft_collect.json"
 DEFAULT_IMAGE_SIZE = 224
@@ -562,6 +563,7 @@ def collect(
         }
 
     executor = None
+    torch_before = None
     bar = tqdm(
         total=episodes,
         initial=min(report.saved, episodes),
@@ -597,6 +599,9 @@ def collect(
             writer = _open_writer(
                 settings, out, committed is not None, features, robot_type, commit_every
             )
+            # lerobot brought torch into this process: one thread next to the workers (they
+            # step the expert and render; none of them loads torch).
+            torch_before = set_torch_threads(DEFAULT_TORCH_THREADS)
             _record_provenance(out, workers, ray_address)
             report.saved = writer.num_episodes
             if pending:  # the head attempt's clock starts now that results can be taken
@@ -683,6 +688,7 @@ def collect(
         raise
     finally:
         bar.close()
+        set_torch_threads(torch_before)
     report.seconds = time.perf_counter() - start
     report.timing = {k: round(v, 3) for k, v in timing.items()}
     return report

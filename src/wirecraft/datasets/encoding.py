@@ -52,8 +52,10 @@ from lerobot.datasets.compute_stats import DEFAULT_QUANTILES
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.datasets.video_utils import StreamingVideoEncoder
 
+from wirecraft.lerobot_compat import quiet_torchcodec
 from wirecraft.numerics import matvec
 
+quiet_torchcodec()  # lerobot's torchcodec traceback where FFmpeg is missing
 LEVELS = 256  # uint8 intensity levels
 
 

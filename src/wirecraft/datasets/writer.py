@@ -34,6 +34,9 @@ import shutil
 from pathlib import Path
 
 from wirecraft.datasets.recorder import Episode
+from wirecraft.lerobot_compat import quiet_torchcodec
+
+quiet_torchcodec()  # lerobot's torchcodec traceback where FFmpeg is missing
 
 COMMIT_FILE = "meta/wirecraft_commit.json"
 COMMIT_FORMAT = 1
@@ -44,7 +47,7 @@ TASKS_FILE = "meta/tasks.parquet"
 # lerobot's per-episode files: everything else at the top level of a dataset is either
 # metadata restored from the commit record or a temporary folder of an unfinished episode.
 EPISODE_DIRS = ("data", "meta/episodes", "videos")
-VIDEO_BACKEND = "pyav"  # decoding; torchcodec needs system FFmpeg libraries (NOTES.md)
+VIDEO_BACKEND = "pyav"  # decoding; torchcodec needs the system FFmpeg libraries (lerobot_compat)
 # Video encoders (lerobot ``RGBEncoderConfig`` fields).  Both keep lerobot's 2-frame GOP (fast
 # random access when training) and yuv420p.  Measured on 224 x 224 frames of this task, one
 # thread: h264 (veryfast, CRF 18) ~1 ms per frame, mean abs error ~1.6 / 255, ~2 kB per frame;

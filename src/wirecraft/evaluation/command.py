@@ -98,6 +98,26 @@ def configure(p: argparse.ArgumentParser, add_task_args) -> None:
     p.add_argument(
         "--device", default=None, help="torch device for learned policies (default: cpu)"
     )
+    p.add_argument(
+        "--fps",
+        type=number(1, 60, integer=True),
+        default=None,
+        help="LeRobot policies: the frame rate of the dataset the policy was trained on, a "
+        "divisor of 60 (default: read from the checkpoint's train_config.json)",
+    )
+    p.add_argument(
+        "--torch-threads",
+        type=number(0, 1024, integer=True),
+        default=1,
+        help="torch's threads in each process stepping a learned policy (0: torch's default; "
+        "default: 1)",
+    )
+    p.add_argument(
+        "--label",
+        default=None,
+        help="the run's name in the JSON and the report (default: from the policy's path, "
+        "e.g. act_run/020000 for act_run/checkpoints/020000/pretrained_model)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -145,7 +165,8 @@ def print_summary(payload: dict, seconds: float) -> None:
         else f"public seeds {proto['version']}"
     )
     print(
-        f"{payload['variant']} · policy {payload['policy']} · {proto['seeds']} seeds x "
+        f"{payload['variant']} · policy {payload.get('label') or payload['policy']} · "
+        f"{proto['seeds']} seeds x "
         f"{proto['episodes_per_seed']} episodes x {proto['episode_steps']} steps ({which})"
     )
     for name, value in payload["metrics"].items():
@@ -163,6 +184,7 @@ def run(args, task_kwargs, write_json) -> int:
     from wirecraft.cli import only_with, usage_error
     from wirecraft.evaluation import report as report_mod
     from wirecraft.evaluation.policies import BUILTIN_POLICIES as BUILT_IN_POLICIES
+    from wirecraft.evaluation.policies import _lerobot_config
     from wirecraft.evaluation.protocol import run_evaluation
     from wirecraft.evaluation.traces import write_traces
 
@@ -178,6 +200,12 @@ def run(args, task_kwargs, write_json) -> int:
             "--policy",
             f"{args.policy!r} is neither {', '.join(BUILT_IN_POLICIES)} nor an existing directory",
         )
+    if args.policy in BUILT_IN_POLICIES or _lerobot_config(Path(args.policy)) is None:
+        only_with(args, "a LeRobot policy directory", "--fps")
+    if args.fps is not None and 60 % args.fps:
+        raise usage_error("--fps", f"must divide the 60 Hz control rate, got {args.fps}")
+    if args.label is not None and not args.label.strip():
+        raise usage_error("--label", "must not be empty")
     retain_force = DEFAULT_FORCE if args.retain_force is None else args.retain_force
     args.video_episodes = args.video_episodes or "auto"
     device = args.device or "cpu"
@@ -186,6 +214,9 @@ def run(args, task_kwargs, write_json) -> int:
         outside = [w for w in wanted if not (0 <= w[0] < args.seeds and 0 <= w[1] < args.episodes)]
         if outside:
             raise ValueError(f"--video-episodes: no such episodes {outside} in this evaluation")
+    policy_kwargs = {"device": device} if device != "cpu" else {}
+    if args.fps is not None:
+        policy_kwargs["fps"] = args.fps
     start = time.time()
     evaluation = run_evaluation(
         family,
@@ -199,7 +230,9 @@ def run(args, task_kwargs, write_json) -> int:
         batch=args.batch,
         ray_address=args.ray,
         progress=not args.quiet,
-        policy_kwargs={"device": device} if device != "cpu" else None,
+        policy_kwargs=policy_kwargs or None,
+        torch_threads=args.torch_threads,
+        label=args.label,
         **env_kwargs,
     )
     payload = evaluation.payload

@@ -27,12 +27,16 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from wirecraft.experts.fsm import unwrap_envs
+from wirecraft.lerobot_compat import quiet_torchcodec
 
+quiet_torchcodec()  # lerobot's torchcodec traceback where FFmpeg is missing
 BUILTIN_POLICIES = ("scripted", "random", "zero")
 RL_MARKER = "wirecraft_rl.json"
 # What an RL policy fixes about its environments (its observation and action spaces).
 # LeRobot camera feature -> our observation key (the dataset schema's camera names).
 LEROBOT_CAMERAS = {"cam_side": "rgb_side", "cam_wrist": "rgb_wrist"}
+# Written by lerobot-train next to a checkpoint's config.json (the training run's settings).
+TRAIN_CONFIG = "train_config.json"
 
 
 @runtime_checkable
@@ -133,7 +137,49 @@ class RandomPolicy:
         return np.stack([g.uniform(-1.0, 1.0, self.action_dim) for g in self.generators])
 
 
-class LeRobotPolicy:
+class DatasetActionPolicy:
+    """Drives ``joint``-controlled environments with dataset actions at the dataset's frame
+    rate (the base of ``LeRobotPolicy``).
+
+    A dataset records one frame every ``k = CONTROL_HZ / fps`` control steps
+    (``wirecraft.datasets.recorder``): frame ``j``'s observation is the state after control
+    step ``j k`` (after ``reset`` for frame 0), its action the absolute servo targets (rad) +
+    pad gap (m) the robot is driven to during control steps ``[j k, (j + 1) k)``.  ``act`` is
+    called at every control step; at a frame boundary (every ``k``-th call since ``reset``) it
+    asks ``frame_actions(obs)`` for the next frame's actions, and on each of the ``k`` steps it
+    turns them into ``joint`` actions with ``joint_action`` (a target further than a step's
+    rated motion is approached over the frame's steps).  The observations between frame
+    boundaries are not read."""
+
+    control = "joint"
+
+    def __init__(self, env, fps: float) -> None:
+        self.envs = unwrap_envs(env)
+        self.fps = fps
+        self.steps_per_frame = frame_steps(fps)
+        self._step = 0
+        self._targets: np.ndarray | None = None
+
+    def frame_actions(self, obs) -> np.ndarray:
+        """(N, dof + 1) dataset actions for the frame starting at observation ``obs``."""
+        raise NotImplementedError
+
+    def reset(self, env_ids=None) -> None:
+        # One frame clock for the whole batch: the protocol resets every environment together.
+        del env_ids
+        self._step = 0
+        self._targets = None
+
+    def act(self, obs) -> np.ndarray:
+        if self._targets is None or self._step % self.steps_per_frame == 0:
+            targets = np.asarray(self.frame_actions(obs), dtype=float)
+            self._targets = targets.reshape(len(self.envs), -1)
+        self._step += 1
+        rows = zip(self.envs, self._targets, strict=True)
+        return np.stack([joint_action(env, row) for env, row in rows])
+
+
+class LeRobotPolicy(DatasetActionPolicy):
     """A LeRobot pretrained policy (``PreTrainedPolicy.from_pretrained``) on our environments.
 
     Observations (``obs_mode="state_rgb"``) map onto the WireCraft dataset schema:
@@ -143,17 +189,32 @@ class LeRobotPolicy:
     action is the dataset action: absolute arm joint targets (rad) + gripper opening (m), which
     the adapter turns into ``joint``-control actions (per-step target deltas over the joints'
     rated step, clipped to [-1, 1]; gripper command = 1 - 2 opening / max opening).
+
+    The policy runs at the frame rate of the dataset it was trained on (``DatasetActionPolicy``):
+    queried once per frame, on the observation the dataset recorder would have sampled, each
+    action held for ``CONTROL_HZ / fps`` control steps, so action chunks play at recorded speed.
+    ``fps``: that frame rate; None reads it from the checkpoint (``checkpoint_fps``) and fails
+    when the checkpoint does not say.
     """
 
-    control = "joint"
-
-    def __init__(self, path: str | Path, env, device: str = "cpu") -> None:
+    def __init__(
+        self, path: str | Path, env, device: str = "cpu", fps: float | None = None
+    ) -> None:
+        if fps is None:
+            fps = checkpoint_fps(path)
+            if fps is None:
+                raise ValueError(
+                    f"{path}: the frame rate of the policy's training data is not recorded in "
+                    f"the checkpoint (no {TRAIN_CONFIG} naming a dataset whose meta/info.json "
+                    "is on this machine, nor an env with an fps): pass it explicitly, "
+                    "fps=... (wirecraft eval --fps N; the dataset's meta/info.json has it)"
+                )
+        super().__init__(env, fps)
         import torch
         from lerobot.configs.policies import PreTrainedConfig
         from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
         self.torch = torch
-        self.envs = unwrap_envs(env)
         for e in self.envs:
             if e.controller.name != "joint":
                 raise ValueError("a LeRobot policy needs environments with control='joint'")
@@ -180,7 +241,7 @@ class LeRobotPolicy:
 
     def reset(self, env_ids=None) -> None:
         # LeRobot policies keep one action queue for the whole batch: any reset restarts it.
-        del env_ids
+        super().reset(env_ids)
         self.policy.reset()
 
     def _batch(self, obs) -> dict[str, Any]:
@@ -197,13 +258,76 @@ class LeRobotPolicy:
         batch["task"] = [env.task_description for env in self.envs]
         return batch
 
-    def act(self, obs) -> np.ndarray:
+    def frame_actions(self, obs) -> np.ndarray:
         with self.torch.inference_mode():
             action = self.post(self.policy.select_action(self.pre(self._batch(obs))))
-        targets = np.asarray(action.detach().cpu().numpy(), dtype=float)
-        targets = targets.reshape(len(self.envs), -1)
-        rows = zip(self.envs, targets, strict=True)
-        return np.stack([joint_action(env, row) for env, row in rows])
+        return np.asarray(action.detach().cpu().numpy(), dtype=float)
+
+
+def frame_steps(fps) -> int:
+    """Control steps per dataset frame at ``fps`` frames/s: ``CONTROL_HZ / fps``, which must
+    be a whole number."""
+    from wirecraft.envs.env import CONTROL_HZ
+
+    ok = not isinstance(fps, bool) and isinstance(fps, (int, float)) and fps > 0
+    if ok and float(CONTROL_HZ / fps).is_integer():
+        return int(CONTROL_HZ // fps)
+    divisors = [d for d in range(1, CONTROL_HZ + 1) if CONTROL_HZ % d == 0]
+    raise ValueError(
+        f"fps must divide the {CONTROL_HZ} Hz control rate (one of "
+        f"{', '.join(map(str, divisors))}) so that each action is held for a whole number of "
+        f"control steps; got {fps!r}"
+    )
+
+
+def checkpoint_fps(path: str | Path) -> float | None:
+    """The frame rate (frames/s) of the dataset a LeRobot checkpoint was trained on, or None.
+
+    LeRobot's policy config does not store it; ``lerobot-train`` writes ``train_config.json``
+    next to it, whose ``dataset`` names the dataset (``root``, else ``repo_id`` under
+    ``$HF_LEROBOT_HOME``): the ``fps`` of that dataset's ``meta/info.json``, when it is on this
+    machine; else the training config's ``env.fps``."""
+    train = Path(path) / TRAIN_CONFIG
+    try:
+        config = json.loads(train.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    if not isinstance(config, dict):
+        return None
+    dataset = config.get("dataset") or {}
+    roots = []
+    if isinstance(dataset, dict):
+        if dataset.get("root"):
+            roots.append(Path(str(dataset["root"])).expanduser())
+        if isinstance(dataset.get("repo_id"), str):
+            roots.append(_lerobot_home() / dataset["repo_id"])
+    for root in roots:
+        try:
+            fps = json.loads((root / "meta" / "info.json").read_text()).get("fps")
+        except (OSError, json.JSONDecodeError, AttributeError):
+            continue
+        if fps:
+            return fps
+    env = config.get("env")
+    if isinstance(env, dict) and env.get("fps"):
+        return env["fps"]
+    return None
+
+
+def _lerobot_home() -> Path:
+    """Where LeRobot keeps local datasets (``HF_LEROBOT_HOME``; lerobot.utils.constants)."""
+    import os
+
+    try:
+        from lerobot.utils.constants import HF_LEROBOT_HOME
+    except ImportError:
+        pass
+    else:
+        return Path(HF_LEROBOT_HOME)
+    if os.environ.get("HF_LEROBOT_HOME"):
+        return Path(os.environ["HF_LEROBOT_HOME"]).expanduser()
+    hf_home = os.environ.get("HF_HOME", os.path.join("~", ".cache", "huggingface"))
+    return Path(hf_home).expanduser() / "lerobot"
 
 
 def joint_action(env, dataset_action: np.ndarray) -> np.ndarray:
@@ -254,6 +378,33 @@ def policy_name(spec) -> str:
     if isinstance(spec, (str, Path)):
         return str(spec)
     return f"{spec.__module__}.{spec.__qualname__}"
+
+
+# LeRobot's checkpoint layout: RUN/checkpoints/STEP/pretrained_model (STEP: 020000, or last).
+LEROBOT_CHECKPOINTS = "checkpoints"
+LEROBOT_MODEL_DIR = "pretrained_model"
+
+
+def policy_label(spec) -> str:
+    """A short name of a policy for reports: a built-in's name; for a path, its folder, with
+    LeRobot's layout read as the run and the step (``RUN/checkpoints/020000/pretrained_model``
+    -> ``RUN/020000``) and a file named with its folder (``RUN/model_500.pt``)."""
+    if not isinstance(spec, (str, Path)):
+        return policy_name(spec)
+    text = str(spec)
+    if text in BUILTIN_POLICIES:
+        return text
+    import os
+
+    parts = [p for p in Path(os.path.abspath(text)).parts if p not in ("/", "")]
+    if parts and parts[-1] == LEROBOT_MODEL_DIR and len(parts) > 1:
+        parts = parts[:-1]
+        if len(parts) > 2 and parts[-2] == LEROBOT_CHECKPOINTS:
+            return f"{parts[-3]}/{parts[-1]}"
+        return parts[-1]
+    if Path(text).is_file() and len(parts) > 1:
+        return f"{parts[-2]}/{parts[-1]}"
+    return parts[-1] if parts else text
 
 
 def policy_env_kwargs(spec, task: str) -> dict[str, Any]:
@@ -308,7 +459,7 @@ def load_policy(spec, env, **kw) -> Policy:
     ``scripted``: the task's expert; ``random``; ``zero``; or a path: an RL run (a directory
     containing, or a file inside a directory containing, ``wirecraft_rl.json``: loaded by
     ``wirecraft.rl.load_policy(path, env)``) or a LeRobot pretrained-policy directory.
-    Extra keywords go to the loader (e.g. ``device`` for LeRobot).  ``spec`` may also be a
+    Extra keywords go to the loader (``device`` and ``fps`` for LeRobot).  ``spec`` may also be a
     factory called as ``spec(env, **kw)`` (a module-level class, so that worker processes
     can import it)."""
     if callable(spec):
@@ -356,14 +507,18 @@ def policy_phase_names(policy) -> list[str] | None:
 
 __all__ = [
     "BUILTIN_POLICIES",
+    "DatasetActionPolicy",
     "LeRobotPolicy",
     "Policy",
     "RandomPolicy",
     "ScriptedPolicy",
     "ZeroPolicy",
+    "checkpoint_fps",
+    "frame_steps",
     "joint_action",
     "load_policy",
     "policy_env_kwargs",
+    "policy_label",
     "policy_name",
     "policy_phase_names",
 ]

@@ -29,6 +29,7 @@ from wirecraft.evaluation import diagnostics, retention
 from wirecraft.evaluation.policies import (
     load_policy,
     policy_env_kwargs,
+    policy_label,
     policy_name,
     policy_phase_names,
 )
@@ -40,6 +41,8 @@ from wirecraft.evaluation.seeds import (
     variant_key,
 )
 from wirecraft.provenance import provenance
+from wirecraft.torch_threads import DEFAULT_TORCH_THREADS, check_torch_threads
+from wirecraft.torch_threads import torch_threads as limit_torch_threads
 
 METRICS = {
     "insertion": ("success", "reach_success", "insert_success", "retain_success", "success_at_end"),
@@ -68,6 +71,8 @@ class EvalConfig:
     batch: int = DEFAULT_BATCH
     threads: int = 1
     policy_kwargs: dict[str, Any] = field(default_factory=dict)
+    # Torch's intra-op threads while this process steps the policy (None or 0: torch's own).
+    torch_threads: int | None = DEFAULT_TORCH_THREADS
 
     def key(self) -> str:
         return json.dumps(
@@ -144,6 +149,11 @@ def run_chunk(config: EvalConfig, specs: list[EpisodeSpec], progress=None) -> li
     if not 1 <= len(specs) <= config.batch:
         raise ValueError(f"a chunk holds 1 to {config.batch} episodes, got {len(specs)}")
     venv, policy = _build(config)
+    with limit_torch_threads(config.torch_threads):
+        return _run_chunk(config, specs, venv, policy, progress)
+
+
+def _run_chunk(config, specs, venv, policy, progress) -> list[EpisodeResult]:
     envs = venv.envs
     n = config.batch
     seeds = [s.reset_seed for s in specs] + [specs[0].reset_seed] * (n - len(specs))
@@ -403,10 +413,15 @@ def run_evaluation(
     ray_address: str | None = None,
     progress: bool = True,
     policy_kwargs: dict | None = None,
+    torch_threads: int | None = DEFAULT_TORCH_THREADS,
+    label: str | None = None,
     **env_kwargs,
 ) -> EvaluationRun:
     """Evaluate ``policy_spec`` on ``task``: the payload (JSON document) and every episode's
-    trace.  ``env_kwargs`` are ``wirecraft.make`` keywords (robot, wire, connector, ...)."""
+    trace.  ``env_kwargs`` are ``wirecraft.make`` keywords (robot, wire, connector, ...).
+    ``torch_threads``: torch's intra-op threads in each process stepping the policy, this
+    one included while it does (None or 0: torch's default); ``label``: the run's name in
+    reports (default: derived from the policy, ``policy_label``)."""
     import wirecraft
 
     family = next((k for k, v in wirecraft.TASK_IDS.items() if task in (k, v)), None)
@@ -421,6 +436,9 @@ def run_evaluation(
         raise ValueError(f"episode_seconds must be > 0, got {episode_seconds!r}")
     if not (math.isfinite(retain_force) and retain_force >= 0):
         raise ValueError(f"retain_force must be >= 0 newtons, got {retain_force!r}")
+    torch_threads = check_torch_threads(torch_threads)
+    if label is not None and not (isinstance(label, str) and label.strip()):
+        raise ValueError(f"label must be a non-empty string, got {label!r}")
     if "render_mode" in env_kwargs and env_kwargs["render_mode"] is not None:
         raise ValueError("evaluation renders its own videos: do not pass render_mode")
     policy_spec = policy_spec if callable(policy_spec) else str(policy_spec)
@@ -443,6 +461,7 @@ def run_evaluation(
         batch=batch,
         threads=1 if workers > 1 or ray_address else 0,
         policy_kwargs=dict(policy_kwargs or {}),
+        torch_threads=torch_threads,
     )
     results = _run_all(config, specs, workers, ray_address, progress)
     episodes_json = [
@@ -462,6 +481,7 @@ def run_evaluation(
         "task": family,
         "variant": variant_key(family, merged),
         "policy": policy_name(policy_spec),
+        "label": label.strip() if label is not None else policy_label(policy_spec),
         "env_kwargs": {k: _clean(v) for k, v in sorted(merged.items())},
         "protocol": {
             "version": PROTOCOL_VERSION,

@@ -17,6 +17,7 @@ import numpy as np
 from wirecraft.envs.env import CONTROL_HZ
 from wirecraft.evaluation import retention
 from wirecraft.evaluation.policies import policy_phase_names
+from wirecraft.torch_threads import torch_threads as limit_torch_threads
 from wirecraft.video import VideoWriter
 
 FRAME_EVERY = 2  # control steps per video frame: 30 frames/s
@@ -47,11 +48,18 @@ def record_episode(config, spec, summary: dict, path: str | Path) -> dict:
     last frame is also saved as a PNG beside the video (its poster)."""
     from dataclasses import replace
 
-    from wirecraft.evaluation.protocol import _build, _info_at
-    from wirecraft.render import FastRenderer
+    from wirecraft.evaluation.protocol import _build
 
     single = replace(config, batch=1, threads=1)
     venv, policy = _build(single)
+    with limit_torch_threads(config.torch_threads):
+        return _record(config, spec, summary, path, venv, policy)
+
+
+def _record(config, spec, summary: dict, path, venv, policy) -> dict:
+    from wirecraft.evaluation.protocol import _info_at
+    from wirecraft.render import FastRenderer
+
     env = venv.envs[0]
     side_cam = env.robot.side_camera
     wrist_cam = env.robot.wrist_camera
