@@ -116,3 +116,67 @@ def test_the_report_keeps_the_json_documents(report_dir):
         assert stored["metrics"] == document["metrics"]
         assert stored["episodes"] == document["episodes"]
         assert all(path.startswith("videos/") for path in stored["videos"].values())
+
+
+def _payload(policy: str, label: str | None = None) -> dict:
+    payload = {
+        "task": "insertion",
+        "variant": "insertion/clearance=0.003/connector=ethernet",
+        "policy": policy,
+        "env_kwargs": {"robot": "ur5"},
+        "protocol": {"reset_seeds": [[1]]},
+    }
+    if label is not None:
+        payload["label"] = label
+    return payload
+
+
+def test_runs_of_lerobot_checkpoints_are_labelled_apart():
+    act = "out/train/act_run/checkpoints/020000/pretrained_model"
+    dp = "out/train/dp_run/checkpoints/020000/pretrained_model"
+    runs = [("a", _payload(act)), ("b", _payload(dp)), ("c", _payload("zero", label="mine"))]
+    labels = report.run_labels(runs)
+    assert labels["a"].endswith("· act_run/020000") and labels["b"].endswith("· dp_run/020000")
+    assert labels["c"].endswith("· mine")
+    assert report.run_slug(runs[0][1]) != report.run_slug(runs[1][1])
+    assert "act_run-020000" in report.run_slug(runs[0][1])
+    # The same short name from two places: the full paths; the very same policy: numbered.
+    twins = [("a", _payload("x/act/pretrained_model")), ("b", _payload("y/act/pretrained_model"))]
+    labels = report.run_labels(twins)
+    assert labels["a"].endswith("· x/act/pretrained_model") and labels["b"].endswith(
+        "· y/act/pretrained_model"
+    )
+    same = [("a", _payload("zero")), ("b", _payload("zero")), ("c", _payload("zero"))]
+    assert len(set(report.run_labels(same).values())) == 3
+    assert report.run_labels(same)["c"].endswith("#3")
+
+
+def test_eval_stores_the_label_given_or_derived(tmp_path):
+    common = ["eval", "--task", "insertion", "--policy", "zero", "--seeds", "1", "--episodes"]
+    common += ["1", "--episode-seconds", "0.05", "--quiet", "--json"]
+    assert cli.main([*common, str(tmp_path / "a.json"), "--label", "baseline"]) == 0
+    assert json.loads((tmp_path / "a.json").read_text())["label"] == "baseline"
+    assert cli.main([*common, str(tmp_path / "b.json")]) == 0
+    assert json.loads((tmp_path / "b.json").read_text())["label"] == "zero"
+
+
+def test_trace_panels_fit_data_outside_their_usual_window(tmp_path):
+    window = (-40.0, 25.0)  # insertion depth, mm
+    far = np.full(50, -200.0)  # a plug that never nears the port
+    limits, note = report.panel_limits(far, window)
+    assert limits[0] < -200 < limits[1] and "no data" in note
+    limits, note = report.panel_limits(np.r_[far, np.linspace(-30, 10, 50)], window)
+    assert limits == window and "out of range: 50 below (50% of samples)" in note
+    assert report.panel_limits(np.linspace(-30, 10, 50), window) == (window, None)
+    assert report.panel_limits(far, None) == (None, None)
+    # A whole plot of such an episode draws.
+    import pyarrow as pa
+
+    n = 30
+    columns = {c: np.zeros(n) for c in diagnostics.columns("insertion")}
+    columns.update(
+        seed=np.zeros(n, int), episode=np.zeros(n, int), time=np.arange(n) / 60,
+        stage=["episode"] * n, insertion_depth=np.full(n, -0.2),
+    )  # fmt: skip
+    path = report.plot_traces("insertion", pa.table(columns), tmp_path / "t.png", "far")
+    assert path.stat().st_size > 10_000

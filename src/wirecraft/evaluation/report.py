@@ -63,7 +63,7 @@ def run_slug(payload: dict) -> str:
         sort_keys=True,
     )
     digest = hashlib.sha1(identity.encode()).hexdigest()[:8]
-    policy = Path(str(payload["policy"])).name or "policy"
+    policy = policy_title(payload).replace("/", "-") or "policy"
     variant = [part.split("=", 1)[-1] for part in payload["variant"].split("/")[1:]]
     variant = [v for v in variant if v not in ("None", "ethernet")] or ["default"]
     parts = [
@@ -77,14 +77,45 @@ def run_slug(payload: dict) -> str:
     return re.sub(r"[^A-Za-z0-9_.=-]+", "-", "_".join(str(p) for p in parts if p != ""))
 
 
-def run_label(payload: dict) -> str:
-    """Short human name of a run for tables and plot axes."""
+def policy_title(payload: dict) -> str:
+    """The run's policy name: its ``label`` (``wirecraft eval --label``, else derived from the
+    policy's path), or for documents without one, derived here."""
+    from wirecraft.evaluation.policies import policy_label
+
+    label = payload.get("label")
+    return str(label) if label else policy_label(str(payload["policy"]))
+
+
+def run_label(payload: dict, policy: str | None = None) -> str:
+    """Short human name of a run for tables and plot axes (``policy``: the policy's name in
+    it, default ``policy_title``)."""
     variant = payload["variant"].split("/", 1)
     details = variant[1].replace("/", ", ") if len(variant) > 1 else ""
     kwargs = payload.get("env_kwargs", {})
     extra = ", ".join(f"{k}={kwargs[k]}" for k in ("robot", "wire") if k in kwargs)
-    policy = Path(str(payload["policy"])).name
+    policy = policy_title(payload) if policy is None else policy
     return f"{payload['task']} [{details}{', ' + extra if extra else ''}] · {policy}"
+
+
+def run_labels(runs: list[tuple[str, dict]]) -> dict[str, str]:
+    """slug -> a label distinct from every other run's: runs whose ``run_label`` coincide are
+    named by their policy's full path, then numbered (#2, #3, ...) in the folder's order."""
+    labels = {slug: run_label(payload) for slug, payload in runs}
+    payloads = dict(runs)
+    for name in set(labels.values()):
+        same = [slug for slug in labels if labels[slug] == name]
+        if len(same) < 2:
+            continue
+        full = {slug: run_label(payloads[slug], str(payloads[slug]["policy"])) for slug in same}
+        if len(set(full.values())) == len(same):
+            labels.update(full)
+    seen: dict[str, int] = {}
+    for slug, _ in runs:
+        name = labels[slug]
+        seen[name] = seen.get(name, 0) + 1
+        if seen[name] > 1:
+            labels[slug] = f"{name} #{seen[name]}"
+    return labels
 
 
 # -- folder bookkeeping -------------------------------------------------------------------------
@@ -126,10 +157,11 @@ def _pyplot():
 def plot_success(runs: list[tuple[str, dict]], path: Path) -> Path:
     """Grouped bars: every metric of every run, mean +/- std over seeds, seeds as dots."""
     plt = _pyplot()
+    labels = run_labels(runs)
     metrics = [m for m in METRIC_TITLES if any(m in p["metrics"] for _, p in runs)]
     fig, ax = plt.subplots(figsize=(max(6.0, 1.6 * len(runs) * len(metrics) / 2), 3.8))
     width = 0.8 / max(1, len(runs))
-    for r, (_, payload) in enumerate(runs):
+    for r, (slug, payload) in enumerate(runs):
         xs, means, stds = [], [], []
         for m, metric in enumerate(metrics):
             if metric not in payload["metrics"]:
@@ -141,7 +173,7 @@ def plot_success(runs: list[tuple[str, dict]], path: Path) -> Path:
             stds.append(100 * (value["std"] or 0.0))
             seeds = [100 * v for v in value["per_seed"] if v is not None]
             ax.scatter([x] * len(seeds), seeds, s=9, color="black", zorder=3)
-        ax.bar(xs, means, width * 0.95, yerr=stds, capsize=3, label=run_label(payload))
+        ax.bar(xs, means, width * 0.95, yerr=stds, capsize=3, label=labels[slug])
     ax.set_xticks(range(len(metrics)), [METRIC_TITLES[m] for m in metrics])
     ax.set_ylabel("rate (%), mean ± std over seeds")
     ax.set_ylim(0, 105)
@@ -159,7 +191,8 @@ def plot_failures(runs: list[tuple[str, dict]], path: Path) -> Path:
     labels = [lab for lab in diagnostics.TAXONOMY if any(lab in p["failures"] for _, p in runs)]
     fig, ax = plt.subplots(figsize=(7.5, 0.6 + 0.5 * max(2, len(runs))))
     cmap = plt.get_cmap("tab20")
-    names = [run_label(p) for _, p in runs]
+    run_names = run_labels(runs)
+    names = [run_names[slug] for slug, _ in runs]
     left = np.zeros(len(runs))
     for label in labels:
         counts = np.array([p["failures"].get(label, 0) for _, p in runs], float)
@@ -177,6 +210,35 @@ def plot_failures(runs: list[tuple[str, dict]], path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def panel_limits(values: np.ndarray, window) -> tuple[tuple[float, float] | None, str | None]:
+    """The y limits of a trace panel and a note for it.  ``window``: the panel's usual range
+    (the interesting one: a dropped plug is 20 cm from the port), or None (matplotlib's own
+    limits).  When no finite value falls in the window (a policy that never nears the port)
+    the limits fit the data instead, noted; when some values lie outside it, they are noted
+    as out of range."""
+    if window is None:
+        return None, None
+    lo, hi = window
+    values = np.asarray(values, float)
+    values = values[np.isfinite(values)]
+    if not values.size:
+        return (lo, hi), None
+    inside = (values >= lo) & (values <= hi)
+    if inside.all():
+        return (lo, hi), None
+    if not inside.any():
+        low, high = float(values.min()), float(values.max())
+        # At least a quarter of the window's span, so a flat trace is not magnified into noise.
+        span = max(high - low, (hi - lo) / 4)
+        pad = 0.05 * span + (span - (high - low)) / 2
+        return (low - pad, high + pad), f"no data in {lo:g}..{hi:g}: axis fits the data"
+    above, below = int((values > hi).sum()), int((values < lo).sum())
+    where = " and ".join(
+        text for count, text in ((above, f"{above} above"), (below, f"{below} below")) if count
+    )
+    return (lo, hi), f"out of range: {where} ({100 * (~inside).mean():.0f}% of samples)"
 
 
 def plot_traces(task: str, table, path: Path, title: str) -> Path:
@@ -205,9 +267,15 @@ def plot_traces(task: str, table, path: Path, title: str) -> Path:
             ax.plot(times[rows], values[rows], lw=0.8, alpha=0.6, color=colour)
         ax.axvline(horizon, color="grey", ls="--", lw=0.8)
         finite = values[np.isfinite(values)]
-        if limits is not None:  # the interesting range (a dropped plug is 20 cm away)
-            ax.set_ylim(*limits)
-        elif finite.size and finite.max() > 3 * np.percentile(finite, 99.5) > 0:
+        ylim, note = panel_limits(finite, limits)
+        if ylim is not None:
+            ax.set_ylim(*ylim)
+        if note:
+            ax.text(
+                0.99, 0.97, note, transform=ax.transAxes, ha="right", va="top", fontsize=7,
+                color="dimgrey",
+            )  # fmt: skip
+        elif finite.size and limits is None and finite.max() > 3 * np.percentile(finite, 99.5) > 0:
             # A few numerical spikes would flatten every curve: clip them (noted on the axis).
             ax.set_ylim(0, 1.2 * np.percentile(finite, 99.5))
             label += " (spikes clipped)"
@@ -246,6 +314,7 @@ def _fmt(metric: dict | None) -> str:
 
 
 def _summary_table(runs) -> str:
+    labels = run_labels(runs)
     metrics = [m for m in METRIC_TITLES if any(m in p["metrics"] for _, p in runs)]
     head = "".join(f"<th>{METRIC_TITLES[m]} (%)</th>" for m in metrics)
     rows = []
@@ -254,7 +323,7 @@ def _summary_table(runs) -> str:
         failures = ", ".join(f"{k}: {v}" for k, v in payload["failures"].items()) or "none"
         proto = payload["protocol"]
         rows.append(
-            f"<tr><td><a href='#{slug}'>{html.escape(run_label(payload))}</a></td>"
+            f"<tr><td><a href='#{slug}'>{html.escape(labels[slug])}</a></td>"
             f"<td>{proto['seeds']} × {proto['episodes_per_seed']}</td>{cells}"
             f"<td>{html.escape(failures)}</td></tr>"
         )
@@ -326,9 +395,10 @@ def build(folder: str | Path) -> Path:
     plot_success(runs, plots / "success.png")
     plot_failures(runs, plots / "failures.png")
     sections = []
+    labels = run_labels(runs)
     for slug, payload in runs:
         trace_file = folder / "traces" / f"{slug}.parquet"
-        parts = [f"<h2 id='{slug}'>{html.escape(run_label(payload))}</h2>"]
+        parts = [f"<h2 id='{slug}'>{html.escape(labels[slug])}</h2>"]
         proto = payload["protocol"]
         parts.append(
             "<p>policy <code>{}</code>, environment <code>{}</code>, protocol {} ({} seeds × {} "
@@ -347,7 +417,7 @@ def build(folder: str | Path) -> Path:
         )
         if trace_file.exists():
             image = plots / f"traces_{slug}.png"
-            plot_traces(payload["task"], read_traces(trace_file), image, run_label(payload))
+            plot_traces(payload["task"], read_traces(trace_file), image, labels[slug])
             parts.append(f"<img src='plots/{image.name}' alt='traces {slug}'>")
             parts.append(f"<p>Traces: <a href='traces/{slug}.parquet'>{slug}.parquet</a></p>")
         videos = payload.get("videos") or {}
