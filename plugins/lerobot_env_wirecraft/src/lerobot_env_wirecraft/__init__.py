@@ -19,6 +19,11 @@ from lerobot_env_wirecraft.configs import (
     WireCraftRoutingEnv,
     WireCraftSeatingEnv,
 )
+from wirecraft.lerobot_compat import quiet_torchcodec
+
+# lerobot-train and lerobot-eval import this plug-in before they build a dataset configuration,
+# which would otherwise log torchcodec's loading traceback where FFmpeg is missing.
+quiet_torchcodec()
 
 for _family, _name in TASK_NAMES.items():
     _id = f"{GYM_NAMESPACE}/{_name}"
