@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import wirecraft
+from wirecraft.datasets import schema
 from wirecraft.evaluation import protocol
 from wirecraft.evaluation.policies import (
     checkpoint_fps,
@@ -44,6 +45,10 @@ def test_joint_action_moves_the_servo_targets_toward_absolute_targets():
 @pytest.fixture(scope="module")
 def tiny_act(tmp_path_factory):
     """A randomly initialised, tiny ACT policy saved as LeRobot saves a trained one."""
+    return save_tiny_act(tmp_path_factory)
+
+
+def save_tiny_act(tmp_path_factory, extra_inputs=()):
     torch = pytest.importorskip("torch")
     pytest.importorskip("lerobot")
     from lerobot.configs.types import FeatureType, PolicyFeature
@@ -57,6 +62,7 @@ def tiny_act(tmp_path_factory):
             "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(7,)),
             "observation.images.cam_side": visual,
             "observation.images.cam_wrist": visual,
+            **{key: PolicyFeature(type=FeatureType.STATE, shape=(7,)) for key in extra_inputs},
         },
         output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(7,))},
         device="cpu",
@@ -78,6 +84,7 @@ def tiny_act(tmp_path_factory):
         "action": {"mean": torch.zeros(7), "std": torch.full((7,), 0.1)},
         "observation.images.cam_side": image_stats,
         "observation.images.cam_wrist": image_stats,
+        **{key: {"mean": torch.zeros(7), "std": torch.ones(7)} for key in extra_inputs},
     }
     pre, post = make_pre_post_processors(config, dataset_stats=stats)
     folder = tmp_path_factory.mktemp("act")
@@ -181,3 +188,28 @@ def test_importing_the_modules_that_load_lerobot_prints_no_traceback(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert "Traceback" not in out.stderr and "torchcodec" not in out.stderr, out.stderr[:2000]
     assert out.stdout.split()[0] in ("pyav", "torchcodec")
+
+
+def test_the_cartesian_state_is_supplied_when_a_policy_takes_it(tmp_path_factory):
+    folder = save_tiny_act(tmp_path_factory, extra_inputs=(schema.CARTESIAN_KEY,))
+    venv = wirecraft.make_vec(
+        "insertion", 2, threads=1, **policy_env_kwargs(str(folder), "insertion")
+    )
+    obs, _ = venv.reset(seed=[1, 2])
+    policy = load_policy(str(folder), venv)
+    batch = policy._batch(obs)
+    for i, env in enumerate(venv.envs):
+        expected = schema.cartesian_state(env.robot, env.model, env.data)  # the dataset's
+        assert np.allclose(batch[schema.CARTESIAN_KEY][i].numpy(), expected, atol=1e-6)
+    assert policy.act(obs).shape == (2, 7)
+    venv.close()
+
+
+def test_an_input_wirecraft_does_not_supply_is_a_clear_error(tmp_path_factory):
+    folder = save_tiny_act(tmp_path_factory, extra_inputs=("observation.environment_state",))
+    venv = wirecraft.make_vec(
+        "insertion", 1, threads=1, **policy_env_kwargs(str(folder), "insertion")
+    )
+    with pytest.raises(ValueError, match="observation.environment_state"):
+        load_policy(str(folder), venv)
+    venv.close()

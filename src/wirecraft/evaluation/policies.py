@@ -26,6 +26,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from wirecraft.datasets import schema
 from wirecraft.experts.fsm import unwrap_envs
 from wirecraft.lerobot_compat import quiet_torchcodec
 
@@ -238,6 +239,15 @@ class LeRobotPolicy(DatasetActionPolicy):
                     f"(known: {', '.join(LEROBOT_CAMERAS)})"
                 )
         self.uses_state = "observation.state" in config.input_features
+        self.uses_cartesian = schema.CARTESIAN_KEY in config.input_features
+        known = {"observation.state", schema.CARTESIAN_KEY, *self.image_keys}
+        unknown = sorted(set(config.input_features) - known)
+        if unknown:
+            raise ValueError(
+                f"LeRobot policy inputs {unknown}: WireCraft supplies observation.state, "
+                f"{schema.CARTESIAN_KEY} and observation.images.* "
+                f"({', '.join(LEROBOT_CAMERAS)})"
+            )
 
     def reset(self, env_ids=None) -> None:
         # LeRobot policies keep one action queue for the whole batch: any reset restarts it.
@@ -251,6 +261,9 @@ class LeRobotPolicy(DatasetActionPolicy):
         if self.uses_state:
             state = np.asarray(obs["proprio"])[:, : dof + 1]
             batch["observation.state"] = torch.as_tensor(state, dtype=torch.float32)
+        if self.uses_cartesian:
+            cartesian = [schema.cartesian_state(e.robot, e.model, e.data) for e in self.envs]
+            batch[schema.CARTESIAN_KEY] = torch.as_tensor(np.stack(cartesian), dtype=torch.float32)
         for key in self.image_keys:
             images = np.asarray(obs[LEROBOT_CAMERAS[key.split(".")[-1]]])
             tensor = torch.as_tensor(images).permute(0, 3, 1, 2).float() / 255.0
