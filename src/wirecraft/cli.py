@@ -545,8 +545,35 @@ def check_resume(out: str, marker: str, kind: str) -> None:
 
 
 # -- train --------------------------------------------------------------------------------------
+RL_ALGORITHMS = ("ppo", "sacfd", "vision-ppo")
+IL_ALGORITHMS = ("act", "diffusion", "smolvla", "pi05")  # wirecraft.il.train.ALGORITHMS
+IL_FLAGS = (
+    "--dataset",
+    "--batch-size",
+    "--device",
+    "--preset",
+    "--pretrained",
+    "--policy-arg",
+    "--train-arg",
+)
+RL_FLAGS = ("--num-envs", "--threads", "--episode-seconds", "--set", "--task", *TASK_FLAGS)
+
+
+def torch_device(text: str) -> str:
+    """An argparse ``type=``: cpu, cuda, cuda:N or mps."""
+    head, _, index = text.partition(":")
+    if head in ("cpu", "mps") and not index or head == "cuda" and (not index or index.isdigit()):
+        return text
+    raise argparse.ArgumentTypeError(f"expected cpu, cuda, cuda:N or mps, got {text!r}")
+
+
 def _train_args(p):
-    p.add_argument("algorithm", choices=("ppo", "sacfd", "vision-ppo"), help="RL baseline")
+    p.add_argument(
+        "algorithm",
+        choices=RL_ALGORITHMS + IL_ALGORITHMS,
+        help="RL baseline (ppo, sacfd, vision-ppo) or imitation policy trained by LeRobot "
+        "(act, diffusion; smolvla and pi05 only from a local checkpoint, --pretrained)",
+    )
     add_task_args(p)
     p.set_defaults(task=None)
     p.add_argument(
@@ -582,6 +609,81 @@ def _train_args(p):
         "--set", action="append", default=[], metavar="NAME=VALUE", help="any config setting"
     )
     p.add_argument("--json", metavar="PATH", type=output_file, help="write the run summary as JSON")
+    il = p.add_argument_group("imitation (act, diffusion, smolvla, pi05)")
+    il.add_argument("--dataset", metavar="DIR", help="a dataset written by wirecraft collect")
+    il.add_argument(
+        "--batch-size",
+        type=number(1, 1_000_000, integer=True),
+        default=None,
+        help="default: the reference's (ACT 64; Diffusion: LeRobot's 8)",
+    )
+    il.add_argument(
+        "--device", type=torch_device, default=None, help="cpu, cuda (default: LeRobot's choice)"
+    )
+    il.add_argument(
+        "--preset",
+        choices=("cpu",),
+        default=None,
+        help="cpu: a reduced model and batch for CPU training (a starting point)",
+    )
+    il.add_argument(
+        "--pretrained",
+        metavar="PATH",
+        default=None,
+        help="act/diffusion: torchvision's ImageNet ResNet-18 file (resnet18-f37072fd.pth) or a "
+        "folder holding it; smolvla/pi05: a LeRobot checkpoint folder (required)",
+    )
+    il.add_argument(
+        "--policy-arg",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="any LeRobot policy option (--policy.KEY=VALUE), e.g. dim_model=256",
+    )
+    il.add_argument(
+        "--train-arg",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="any other lerobot-train option, e.g. save_freq=5000, num_workers=2, "
+        "eval.n_episodes=16, env_eval_freq=0",
+    )
+
+
+def cmd_train_il(args) -> int:
+    """``wirecraft train act|diffusion|smolvla|pi05``: LeRobot's training (wirecraft.il)."""
+    from wirecraft.il.train import parse_pairs, train
+
+    only_with(args, "RL algorithms (ppo, sacfd, vision-ppo)", *RL_FLAGS)
+    train_args = parse_pairs("--train-arg", args.train_arg)
+    if args.seed is not None:
+        train_args["seed"] = str(args.seed)
+    if args.resume:
+        only_with(args, "a new run (a resumed run keeps its settings)", *IL_FLAGS[:-1])
+        options = {"steps": args.steps, "train_args": train_args}
+    else:
+        if args.dataset is None:
+            raise usage_error("--dataset", f"{args.algorithm} trains on a dataset: --dataset DIR")
+        options = {
+            "steps": args.steps,
+            "batch_size": args.batch_size,
+            "device": args.device,
+            "preset": args.preset,
+            "policy_args": parse_pairs("--policy-arg", args.policy_arg),
+            "train_args": train_args,
+            "pretrained": args.pretrained,
+        }
+    command = ["wirecraft", *getattr(args, "argv", sys.argv[1:])]
+    record = train(
+        args.algorithm, args.dataset, args.out, resume=args.resume, command=command, **options
+    )
+    session = record["sessions"][-1]
+    print(
+        f"{args.algorithm}: step {session['last_step']} in {session['wall_time_s']:.0f} s; "
+        f"checkpoints in {args.out}/checkpoints, record {args.out}/wirecraft_il.json"
+    )
+    write_json(args.json, record)
+    return 0
 
 
 def check_resumed_run(args) -> None:
@@ -605,8 +707,16 @@ def check_resumed_run(args) -> None:
             )
 
 
-@command("train", "train an RL baseline (PPO, SACfD, vision PPO); resumable", _train_args)
+@command(
+    "train",
+    "train an RL baseline (PPO, SACfD, vision PPO) or, through LeRobot, an imitation policy "
+    "(ACT, Diffusion Policy); resumable",
+    _train_args,
+)
 def cmd_train(args) -> int:
+    if args.algorithm in IL_ALGORITHMS:
+        return cmd_train_il(args)
+    only_with(args, "imitation algorithms (act, diffusion, smolvla, pi05)", *IL_FLAGS)
     from wirecraft.rl.common import RUN_FILE
     from wirecraft.rl.train import parse_cli_settings, train
 
@@ -665,6 +775,7 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exit_:
         return exit_.code if isinstance(exit_.code, int) else 2
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     try:
         return COMMANDS[args.command][2](args)
     except (ValueError, RuntimeError, OSError) as err:

@@ -1,0 +1,1 @@
+"""Imitation learning on WireCraft datasets: thin wrappers over LeRobot's own training."""
