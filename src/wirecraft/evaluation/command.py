@@ -119,6 +119,20 @@ def configure(p: argparse.ArgumentParser, add_task_args) -> None:
         "e.g. act_run/020000 for act_run/checkpoints/020000/pretrained_model)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--checkpoints",
+        default=None,
+        help="with --policy RUN (an imitation run: RUN/checkpoints/NNNNNN/pretrained_model): "
+        "evaluate all, last, or steps N,M,...; one row per checkpoint (default: all)",
+    )
+    p.add_argument(
+        "--select",
+        choices=("reference", "validation"),
+        default=None,
+        help="with an imitation run: reference = the top 3 of the last 5 checkpoints (or "
+        "--checkpoints) by SR reach on the evaluation seeds; validation = the best on the "
+        "--seed list, scored on the public list",
+    )
 
 
 def parse_video_spec(spec: str) -> str | list[tuple[int, int]]:
@@ -183,12 +197,23 @@ def print_summary(payload: dict, seconds: float) -> None:
 def run(args, task_kwargs, write_json) -> int:
     from wirecraft.cli import only_with, usage_error
     from wirecraft.evaluation import report as report_mod
+    from wirecraft.evaluation import sweep as sweep_mod
     from wirecraft.evaluation.policies import BUILTIN_POLICIES as BUILT_IN_POLICIES
     from wirecraft.evaluation.policies import _lerobot_config
     from wirecraft.evaluation.protocol import run_evaluation
     from wirecraft.evaluation.traces import write_traces
 
     family, env_kwargs = task_kwargs(args)
+    run_dir = args.policy not in BUILT_IN_POLICIES and sweep_mod.is_imitation_run(args.policy)
+    if not run_dir:
+        only_with(args, "--policy RUN (an imitation run folder with checkpoints/)", "--checkpoints")
+        only_with(args, "--policy RUN (an imitation run folder with checkpoints/)", "--select")
+    else:
+        only_with(
+            args, "one checkpoint (not a sweep)", "--traces", "--video", "--report", "--label"
+        )
+        if args.select == "validation" and args.seed is None:
+            raise usage_error("--seed", "--select validation picks on the --seed N list: pass it")
     if family != "insertion":
         only_with(args, "--task insertion (retention applies to plugs)", "--retain-force")
     if not (args.video or args.report):
@@ -218,6 +243,41 @@ def run(args, task_kwargs, write_json) -> int:
     if args.fps is not None:
         policy_kwargs["fps"] = args.fps
     start = time.time()
+    if run_dir:
+        checkpoints = sweep_mod.choose(
+            sweep_mod.run_checkpoints(args.policy), args.checkpoints, args.select
+        )
+
+        def evaluate(path, held_out):
+            return run_evaluation(
+                family,
+                str(path),
+                seeds=args.seeds,
+                episodes=args.episodes,
+                workers=args.workers,
+                seed=held_out,
+                episode_seconds=args.episode_seconds,
+                retain_force=retain_force,
+                batch=args.batch,
+                ray_address=args.ray,
+                progress=not args.quiet,
+                policy_kwargs=policy_kwargs or None,
+                torch_threads=args.torch_threads,
+                **env_kwargs,
+            ).payload
+
+        result = sweep_mod.sweep(evaluate, checkpoints, args.select, args.seed)
+        result.update(
+            policy=str(args.policy),
+            task=family,
+            env_kwargs=env_kwargs,
+            seeds=args.seeds,
+            episodes_per_seed=args.episodes,
+        )
+        sweep_mod.print_sweep(result)
+        print(f"  ({time.time() - start:.0f} s)")
+        write_json(args.json, result)
+        return 0
     evaluation = run_evaluation(
         family,
         args.policy,

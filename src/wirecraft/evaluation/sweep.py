@@ -1,0 +1,159 @@
+"""Checkpoint sweeps of an imitation run (``wirecraft eval --policy RUN --checkpoints ...``).
+
+A run folder written by ``lerobot-train`` (``wirecraft train act|diffusion``) holds
+``checkpoints/NNNNNN/pretrained_model``.  Each chosen checkpoint is evaluated under the protocol
+(``run_evaluation``, the ``LeRobotPolicy`` adapter) and gives one row: SR reach / insert /
+success, mean +/- std over seeds.  Two ways to pick a checkpoint (``--select``):
+
+- ``reference`` (the reference's method): the 3 best of the last ``REFERENCE_LAST``
+  checkpoints (or those ``--checkpoints`` names) by SR reach on the evaluation seeds, and the
+  mean of their metrics.  Selection and score use the same seeds, so the figure is optimistic.
+- ``validation``: the best checkpoint by SR reach on the validation list derived from
+  ``--seed N`` (seeds.py's held-out stream, disjoint from the public list), then scored on the
+  frozen public list, which the selection never saw (and so comparable with any other policy's
+  public figures).
+
+Ties on SR reach go to the higher SR success, then to the later checkpoint.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from wirecraft.evaluation.policies import LEROBOT_CHECKPOINTS, LEROBOT_MODEL_DIR
+
+REFERENCE_LAST = 5  # checkpoints the reference method chooses among, by default
+REFERENCE_TOP = 3
+ROW_METRICS = ("reach_success", "insert_success", "success")
+
+
+def run_checkpoints(run: str | Path) -> list[tuple[int, Path]]:
+    """(step, pretrained_model folder) of every numbered checkpoint in ``run``, by step."""
+    folder = Path(run) / LEROBOT_CHECKPOINTS
+    found = []
+    if folder.is_dir():
+        for child in folder.iterdir():
+            model = child / LEROBOT_MODEL_DIR
+            if (
+                child.name.isdigit()
+                and not child.is_symlink()
+                and (model / "config.json").is_file()
+            ):
+                found.append((int(child.name), model))
+    return sorted(found)
+
+
+def is_imitation_run(path: str | Path) -> bool:
+    return bool(run_checkpoints(path))
+
+
+def choose(checkpoints: list[tuple[int, Path]], spec: str | None, select: str | None):
+    """The checkpoints ``--checkpoints`` names: all, last, or steps N,M,... (default: all; with
+    ``--select reference`` the last ``REFERENCE_LAST``)."""
+    if spec is None:
+        return checkpoints[-REFERENCE_LAST:] if select == "reference" else checkpoints
+    if spec == "all":
+        return checkpoints
+    if spec == "last":
+        return checkpoints[-1:]
+    by_step = dict(checkpoints)
+    try:
+        steps = [int(s) for s in spec.split(",")]
+    except ValueError:
+        raise ValueError(
+            f"--checkpoints: expected all, last or steps N,M,..., got {spec!r}"
+        ) from None
+    missing = [s for s in steps if s not in by_step]
+    if missing:
+        raise ValueError(
+            f"--checkpoints: no checkpoint at step {', '.join(map(str, missing))} "
+            f"(steps: {', '.join(str(s) for s, _ in checkpoints)})"
+        )
+    return [(s, by_step[s]) for s in sorted(set(steps))]
+
+
+def row(step: int, path: Path, payload: dict, seeds: str) -> dict:
+    metrics = payload["metrics"]
+    return {
+        "step": step,
+        "path": str(path),
+        "seeds": seeds,
+        "metrics": {
+            name: {"mean": metrics[name]["mean"], "std": metrics[name]["std"]}
+            for name in ROW_METRICS
+            if name in metrics
+        },
+        "failures": payload.get("failures", {}),
+    }
+
+
+def _rank_key(r: dict):
+    m = r["metrics"]
+    reach = m.get("reach_success", m["success"])["mean"]
+    return (reach if reach is not None else -1.0, m["success"]["mean"] or 0.0, r["step"])
+
+
+def mean_of(rows: list[dict]) -> dict:
+    import numpy as np
+
+    names = rows[0]["metrics"]
+    return {n: {"mean": float(np.mean([r["metrics"][n]["mean"] for r in rows]))} for n in names}
+
+
+def sweep(evaluate, checkpoints, select: str | None, seed: int | None) -> dict:
+    """Rows of the chosen checkpoints and the selection.  ``evaluate(path, held_out)`` runs the
+    protocol on one checkpoint (``held_out``: the ``--seed`` list, or None: the public list)."""
+    if select == "validation":
+        rows = [row(s, p, evaluate(p, seed), f"validation --seed {seed}") for s, p in checkpoints]
+        best = max(rows, key=_rank_key)
+        final = row(best["step"], Path(best["path"]), evaluate(Path(best["path"]), None), "public")
+        selection = {
+            "method": "validation",
+            "validation_seed": seed,
+            "chosen_step": best["step"],
+            "score": final,
+        }
+        return {"checkpoints": rows, "selection": selection}
+    which = "public" if seed is None else f"held-out --seed {seed}"
+    rows = [row(s, p, evaluate(p, seed), which) for s, p in checkpoints]
+    if select != "reference":
+        return {"checkpoints": rows, "selection": None}
+    top = sorted(rows, key=_rank_key, reverse=True)[:REFERENCE_TOP]
+    selection = {
+        "method": "reference",
+        "candidates": [r["step"] for r in rows],
+        "top_steps": [r["step"] for r in top],
+        "mean_of_top": mean_of(top),
+    }
+    return {"checkpoints": rows, "selection": selection}
+
+
+def _pct(value) -> str:
+    return "    -" if value is None else f"{100 * value:5.1f}"
+
+
+def print_sweep(result: dict) -> None:
+    rows = result["checkpoints"]
+    names = list(rows[0]["metrics"])
+    print(f"{'step':>8s}  " + "  ".join(f"{n:>20s}" for n in names) + "  seeds")
+    for r in rows:
+        cells = "  ".join(
+            f"{_pct(r['metrics'][n]['mean'])} +/- {_pct(r['metrics'][n]['std'])} %" for n in names
+        )
+        print(f"{r['step']:>8d}  {cells}  {r['seeds']}")
+    selection = result["selection"]
+    if selection and selection["method"] == "reference":
+        means = ", ".join(
+            f"{n} {_pct(v['mean']).strip()} %" for n, v in selection["mean_of_top"].items()
+        )
+        print(f"reference selection: top {selection['top_steps']} by SR reach; mean {means}")
+    elif selection:
+        score = selection["score"]["metrics"]
+        means = ", ".join(
+            f"{n} {_pct(v['mean']).strip()} +/- {_pct(v['std']).strip()} %"
+            for n, v in score.items()
+        )
+        print(
+            f"validation selection: step {selection['chosen_step']} (best on --seed "
+            f"{selection['validation_seed']}); public seeds: {means}"
+        )
