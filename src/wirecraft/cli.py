@@ -544,6 +544,38 @@ def check_resume(out: str, marker: str, kind: str) -> None:
         raise usage_error("--resume", f"{out} is not a {kind} (no {marker}): nothing to resume")
 
 
+# -- mix ----------------------------------------------------------------------------------------
+def _mix_args(p):
+    p.add_argument(
+        "--input",
+        action="append",
+        required=True,
+        metavar="DIR[:WEIGHT]",
+        help="a dataset (any source) and its weight (default 1): it makes up "
+        "WEIGHT / sum of the weights of the frames training samples; two or more",
+    )
+    p.add_argument("--out", required=True, help="the new dataset (must not exist)")
+    p.add_argument(
+        "--max-copies",
+        type=number(1, 10**4, integer=True),
+        default=100,
+        help="the most copies of one input's episodes the weights may need (default 100)",
+    )
+    p.add_argument("--json", metavar="PATH", type=output_file, help="write the record as JSON")
+
+
+@command("mix", "merge datasets into one, weighting each by repeating its episodes", _mix_args)
+def cmd_mix(args) -> int:
+    from wirecraft.datasets.mix import mix, parse_input, summary_lines
+
+    inputs = [parse_input(text) for text in args.input]
+    record = mix(inputs, args.out, max_copies=args.max_copies)
+    for line in summary_lines(record, args.out):
+        print(line)
+    write_json(args.json, record)
+    return 0
+
+
 # -- train --------------------------------------------------------------------------------------
 RL_ALGORITHMS = ("ppo", "sacfd", "vision-ppo")
 IL_ALGORITHMS = ("act", "diffusion", "smolvla", "pi05")  # wirecraft.il.train.ALGORITHMS
