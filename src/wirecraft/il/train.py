@@ -28,7 +28,11 @@ RUN_FILE = "wirecraft_il.json"
 COLLECT_FILE = Path("meta") / "wirecraft_collect.json"
 INFO_FILE = Path("meta") / "info.json"
 TRAINABLE = ("act", "diffusion")
-# Accepted, but only as fine-tuning of a local checkpoint (--pretrained): nothing more yet.
+# Accepted, but only as fine-tuning of a local checkpoint (--pretrained, lerobot-train's
+# --policy.path), whose backbones must be on this machine (check_backbones).  SmolVLA can be
+# built from scratch with random weights on a local backbone folder (tests/test_il_vla.py);
+# pi0.5 cannot be made small: LeRobot 0.6 fixes its widths (gemma_300m at least, ~1.9 B
+# parameters) and its pre-processor names the hub tokenizer google/paligemma-3b-pt-224.
 FINE_TUNE_ONLY = ("smolvla", "pi05")
 ALGORITHMS = TRAINABLE + FINE_TUNE_ONLY
 STATE_KEY = "observation.state"
@@ -261,11 +265,81 @@ def torch_home_with(weights: Path) -> str:
 
 def offline_env(torch_home: str | None = None) -> dict:
     env = dict(os.environ)
-    env.update(HF_HUB_OFFLINE="1", HF_DATASETS_OFFLINE="1")
+    env.update(HF_HUB_OFFLINE="1", HF_DATASETS_OFFLINE="1", TRANSFORMERS_OFFLINE="1")
     env.setdefault("WANDB_MODE", "disabled")
     if torch_home:
         env["TORCH_HOME"] = torch_home
     return env
+
+
+# SmolVLA and pi0.5 build their vision-language backbone and tokenizer through transformers'
+# ``from_pretrained`` on names their checkpoint records (even with random weights: SmolVLA's
+# ``load_vlm_weights=false`` still loads the backbone's config and processor).  Offline, each
+# must be a local folder or already in the Hugging Face cache.
+PREPROCESSOR_FILE = "policy_preprocessor.json"
+
+
+def hub_cache_dir() -> str | None:
+    """The Hugging Face hub cache the child process will read (None: the library's default)."""
+    if os.environ.get("HF_HUB_CACHE"):
+        return os.environ["HF_HUB_CACHE"]
+    if os.environ.get("HF_HOME"):
+        return str(Path(os.environ["HF_HOME"]) / "hub")
+    return None
+
+
+def backbone_references(folder: str | Path) -> list[tuple[str, str, str]]:
+    """(what, name, a file it must have) for each backbone the checkpoint in ``folder`` loads
+    by name: the VLM of SmolVLA (``vlm_model_name`` in config.json: its config and processor)
+    and the tokenizer of the pre-processor (``tokenizer_name`` in policy_preprocessor.json)."""
+    folder = Path(folder)
+    refs = []
+    try:
+        config = json.loads((folder / "config.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        config = {}
+    if config.get("vlm_model_name"):
+        refs.append(("vlm_model_name in config.json", config["vlm_model_name"], "config.json"))
+    try:
+        steps = json.loads((folder / PREPROCESSOR_FILE).read_text()).get("steps", [])
+    except (OSError, json.JSONDecodeError, AttributeError):
+        steps = []
+    for step in steps:
+        name = (step.get("config") or {}).get("tokenizer_name") if isinstance(step, dict) else None
+        if name:
+            refs.append((f"tokenizer_name in {PREPROCESSOR_FILE}", name, "tokenizer_config.json"))
+    return refs
+
+
+def is_available_offline(name: str, filename: str) -> bool:
+    """Whether ``from_pretrained(name)`` finds ``filename`` without the hub: a local folder,
+    or a hub repository id already in the cache."""
+    if Path(name).is_dir():
+        return True
+    try:
+        from huggingface_hub import try_to_load_from_cache
+
+        found = try_to_load_from_cache(name, filename, cache_dir=hub_cache_dir())
+    except Exception:  # not a repository id (a path that does not exist, ...)
+        return False
+    return isinstance(found, str)
+
+
+def check_backbones(folder: str | Path, flag: str = "--pretrained") -> None:
+    """A usage error naming each backbone the checkpoint loads by a name that resolves neither
+    to a local folder nor to the Hugging Face cache (WireCraft runs LeRobot offline)."""
+    missing = [
+        f"{what} = {name!r}"
+        for what, name, filename in backbone_references(folder)
+        if not is_available_offline(name, filename)
+    ]
+    if missing:
+        raise usage(
+            flag,
+            f"{folder} loads {'; '.join(missing)}: neither a local folder nor in the Hugging "
+            "Face cache, and WireCraft downloads nothing (HF_HUB_OFFLINE=1). Download it "
+            "beforehand (huggingface-cli download NAME) or point the name at a local copy",
+        )
 
 
 # -- runs ---------------------------------------------------------------------------------------
@@ -346,6 +420,7 @@ def fresh_command(
             raise usage(
                 "--pretrained", f"{pretrained} is not a LeRobot checkpoint folder (no config.json)"
             )
+        check_backbones(folder)
         args.append(f"--policy.path={folder.resolve()}")
         settings["pretrained"] = str(folder.resolve())
         policy = {}
@@ -426,6 +501,8 @@ def resume_command(
         args.append(f"--steps={int(steps)}")
     args += [f"--{k}={v}" for k, v in train_args.items()]
     record = read_record(out)
+    if record.get("algorithm") in FINE_TUNE_ONLY:
+        check_backbones(config.parent, "--resume")
     torch_home = None
     if record.get("pretrained") and record.get("algorithm") in TRAINABLE:
         torch_home = torch_home_with(backbone_file(record["pretrained"]))
