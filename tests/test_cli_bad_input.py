@@ -344,7 +344,7 @@ def test_failed_collect_start_leaves_nothing(tmp_path, monkeypatch, capsys):
 def test_failed_train_start_leaves_nothing(tmp_path, monkeypatch):
     import importlib
 
-    train = importlib.import_module("wirecraft.rl.train")
+    train = importlib.import_module("wirecraft.rl.training")
 
     def broken(*args):
         raise RuntimeError("out of memory")

@@ -750,7 +750,7 @@ def cmd_train(args) -> int:
         return cmd_train_il(args)
     only_with(args, "imitation algorithms (act, diffusion, smolvla, pi05)", *IL_FLAGS)
     from wirecraft.rl.common import RUN_FILE
-    from wirecraft.rl.train import parse_cli_settings, train
+    from wirecraft.rl.training import parse_cli_settings, train
 
     if args.resume:
         check_resume(args.out, RUN_FILE, "RL run directory")

@@ -13,18 +13,18 @@ ALGORITHMS = ("ppo", "sacfd", "vision-ppo")
 
 
 def train(*args, **kwargs):
-    from wirecraft.rl.train import train as _train
+    from wirecraft.rl.training import train as _train
 
     return _train(*args, **kwargs)
 
 
-train.__doc__ = "See ``wirecraft.rl.train.train``."
+train.__doc__ = "See ``wirecraft.rl.training.train``."
 
 
 def load_policy(path, env=None):
     """The policy of an RL run directory (or of a checkpoint inside one); see
-    ``wirecraft.rl.train.load_policy``."""
-    from wirecraft.rl.train import load_policy as _load
+    ``wirecraft.rl.training.load_policy``."""
+    from wirecraft.rl.training import load_policy as _load
 
     return _load(path, env)
 

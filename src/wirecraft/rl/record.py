@@ -33,7 +33,7 @@ def record_rollouts(
     import wirecraft
     from wirecraft.datasets import EpisodeRecorder
     from wirecraft.datasets.writer import EpisodeWriter
-    from wirecraft.rl.train import load_policy
+    from wirecraft.rl.training import load_policy
 
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
