@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -25,3 +27,24 @@ def load_benchmark():
         return module
 
     return load
+
+
+# The quick dataset's settings; tests that build environments or policies to match it read them.
+QUICK_SIZE, QUICK_FPS, QUICK_SEED = 32, 10, 7
+
+
+@pytest.fixture(scope="session")
+def quick_dataset(tmp_path_factory) -> Path:
+    """Two scripted ethernet-insertion episodes written by ``wirecraft collect`` (32 x 32 px,
+    10 fps, seed 7), shared read-only by the LeRobot tests; its parent folder is free for
+    their run folders."""
+    work = tmp_path_factory.mktemp("quick_dataset")
+    root = work / "ds"
+    command = [sys.executable, "-m", "wirecraft.cli", "collect", "--task", "insertion"]
+    command += ["--connector", "ethernet", "--episodes", "2", "--out", str(root)]
+    command += ["--image-size", str(QUICK_SIZE), "--fps", str(QUICK_FPS)]
+    command += ["--seed", str(QUICK_SEED), "--workers", "0"]
+    env = dict(os.environ, HF_HUB_OFFLINE="1", HF_DATASETS_OFFLINE="1")
+    proc = subprocess.run(command, cwd=work, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, f"collect exited {proc.returncode}:\n{proc.stderr[-4000:]}"
+    return root

@@ -61,18 +61,9 @@ def _flags(name: str, values: list[str]) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    work = tmp_path_factory.mktemp("il_train")
-    root = work / "ds"
-    _run(
-        [
-            BIN / "wirecraft", "collect", "--task", "insertion", "--connector", "ethernet",
-            "--episodes", "2", "--out", root, "--image-size", SIZE, "--fps", FPS,
-            "--seed", SEED, "--workers", "0",
-        ],
-        cwd=work,
-    )  # fmt: skip
-    return root
+def dataset(quick_dataset):
+    """Two scripted insertion episodes written by ``wirecraft collect`` (conftest)."""
+    return quick_dataset
 
 
 def _train_act(dataset, out, *extra):

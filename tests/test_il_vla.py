@@ -180,18 +180,9 @@ def save_tiny_smolvla(folder: Path, backbone: Path, dataset: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    work = tmp_path_factory.mktemp("il_vla")
-    root = work / "ds"
-    _run(
-        [
-            BIN / "wirecraft", "collect", "--task", "insertion", "--connector", "ethernet",
-            "--episodes", "2", "--out", root, "--image-size", SIZE, "--fps", FPS,
-            "--seed", SEED, "--workers", "0",
-        ],
-        cwd=work,
-    )  # fmt: skip
-    return root
+def dataset(quick_dataset):
+    """Two scripted insertion episodes written by ``wirecraft collect`` (conftest)."""
+    return quick_dataset
 
 
 @pytest.fixture(scope="module")

@@ -153,19 +153,9 @@ def test_bad_options_are_clear_errors():
 
 # -- a dataset, and the frames it holds --------------------------------------------------------
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    """Two scripted insertion episodes written by ``wirecraft collect`` (32 x 32, 10 fps)."""
-    work = tmp_path_factory.mktemp("lerobot_plugin")
-    root = work / "ds"
-    _run(
-        [
-            BIN / "wirecraft", "collect", "--task", "insertion", "--connector", "ethernet",
-            "--episodes", "2", "--out", root, "--image-size", SIZE, "--fps", FPS,
-            "--seed", SEED, "--workers", "0",
-        ],
-        cwd=work,
-    )  # fmt: skip
-    return root
+def dataset(quick_dataset):
+    """Two scripted insertion episodes written by ``wirecraft collect`` (conftest)."""
+    return quick_dataset
 
 
 def test_one_step_is_one_dataset_frame(dataset):
