@@ -17,8 +17,9 @@ import pytest
 from wirecraft.datasets.collect import CollectSettings, collect
 from wirecraft.datasets.writer import load_dataset
 from wirecraft.envs.env import CONTROL_HZ
+from wirecraft.envs.env import steps_per_frame as frame_steps
 from wirecraft.evaluation import protocol
-from wirecraft.evaluation.policies import DatasetActionPolicy, frame_steps
+from wirecraft.evaluation.policies import DatasetActionPolicy
 from wirecraft.evaluation.protocol import EpisodeSpec, EvalConfig, run_chunk, run_evaluation
 
 FPS = 30

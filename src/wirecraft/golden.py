@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from wirecraft.cli_args import write_text
+
 GOLDEN_FILE = Path(__file__).with_name("golden_rollouts.json")
 STEPS = 480  # one default episode (8 s at 60 Hz)
 CHECKPOINT_EVERY = 60
@@ -153,9 +155,7 @@ def write_golden(today: dict[str, dict], path: Path = GOLDEN_FILE) -> tuple[int,
         "regenerate": "python -m wirecraft.golden --write",
         "cells": {name: today[name] for name in sorted(today)},
     }
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(body, indent=1) + "\n")
-    tmp.replace(path)
+    write_text(path, json.dumps(body, indent=1) + "\n")
     return version, changed
 
 

@@ -65,7 +65,7 @@ class CollectSettings:
 
     def __post_init__(self) -> None:
         import wirecraft
-        from wirecraft.envs.env import CONTROL_HZ
+        from wirecraft.envs.env import steps_per_frame
         from wirecraft.experts import expert_class
 
         family = next((k for k, v in wirecraft.TASK_IDS.items() if self.task in (k, v)), None)
@@ -89,12 +89,7 @@ class CollectSettings:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
-        if CONTROL_HZ % self.fps:
-            divisors = [d for d in range(1, CONTROL_HZ + 1) if CONTROL_HZ % d == 0]
-            raise ValueError(
-                f"fps must divide the {CONTROL_HZ} Hz control rate: one of "
-                f"{', '.join(map(str, divisors))}; got {self.fps}"
-            )
+        steps_per_frame(self.fps)
         from wirecraft.datasets.writer import VIDEO_CODECS
 
         if self.vcodec not in VIDEO_CODECS:
@@ -105,9 +100,9 @@ class CollectSettings:
 
     @property
     def steps_per_frame(self) -> int:
-        from wirecraft.envs.env import CONTROL_HZ
+        from wirecraft.envs.env import steps_per_frame
 
-        return CONTROL_HZ // self.fps
+        return steps_per_frame(self.fps)
 
     def episode_seed(self, attempt: int) -> int:
         """The reset seed of episode attempt ``attempt`` (independent of workers and order)."""

@@ -29,11 +29,11 @@ import shutil
 from pathlib import Path
 
 from wirecraft.datasets import schema
+from wirecraft.datasets.collect import SETTINGS_FILE as COLLECT_FILE
+from wirecraft.datasets.writer import INFO_FILE
 
 MIX_FILE = "meta/wirecraft_mix.json"
 MIX_FORMAT = 1
-COLLECT_FILE = "meta/wirecraft_collect.json"
-INFO_FILE = "meta/info.json"
 REPO_ID = "wirecraft/local"
 SHARE_TOLERANCE = 0.01  # largest |achieved - target| frame share accepted without more copies
 DEFAULT_MAX_COPIES = 100

@@ -134,6 +134,41 @@ def default_episode_seconds(task: str, **env_kwargs: Any) -> float:
         raise ValueError(f"{task}: invalid keyword argument: {err}") from None
 
 
+def as_actions(name: str, actions, shape: tuple[int, ...]) -> np.ndarray:
+    """``actions`` as a float array of ``shape``; ValueError naming ``name`` otherwise."""
+    try:
+        actions = np.asarray(actions, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be numbers of shape {shape}, got {actions!r}") from None
+    if actions.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {actions.shape}")
+    return actions
+
+
+def spec_with_length(spec, steps: int):
+    """gymnasium's ``spec`` with ``max_episode_steps`` = ``steps`` (a copy where it differs;
+    None stays None)."""
+    if spec is None or spec.max_episode_steps == steps:
+        return spec
+    spec = copy.copy(spec)
+    spec.max_episode_steps = steps
+    return spec
+
+
+def steps_per_frame(fps) -> int:
+    """Control steps per recorded frame at ``fps`` frames/s: ``CONTROL_HZ / fps``, which must be
+    a whole number (a dataset frame holds whole control steps)."""
+    ok = not isinstance(fps, bool) and isinstance(fps, (int, float)) and fps > 0
+    if ok and float(CONTROL_HZ / fps).is_integer():
+        return int(CONTROL_HZ // fps)
+    divisors = [d for d in range(1, CONTROL_HZ + 1) if CONTROL_HZ % d == 0]
+    raise ValueError(
+        f"fps must divide the {CONTROL_HZ} Hz control rate (one of "
+        f"{', '.join(map(str, divisors))}) so that each frame holds a whole number of "
+        f"control steps; got {fps!r}"
+    )
+
+
 def within_limits(qpos, qvel, speed_limits) -> np.ndarray:
     """Whether each state (the last axis of ``qpos`` / ``qvel``; one state or N rows) is finite
     and below the speed limits: False means diverged."""
@@ -264,12 +299,7 @@ class WireCraftEnv(gym.Env):
     def spec(self):
         """gymnasium's ``EnvSpec`` of this environment (set by ``gymnasium.make``), its
         ``max_episode_steps`` this environment's episode length (``max_steps``)."""
-        spec = self.__dict__.get("_spec")
-        if spec is None or spec.max_episode_steps == self.max_steps:
-            return spec
-        spec = copy.copy(spec)
-        spec.max_episode_steps = self.max_steps
-        return spec
+        return spec_with_length(self.__dict__.get("_spec"), self.max_steps)
 
     @spec.setter
     def spec(self, spec) -> None:
@@ -413,16 +443,7 @@ class WireCraftEnv(gym.Env):
                 "WireCraftEnv.step: call reset() first (before the first episode, and after "
                 "an episode ended with terminated or truncated)"
             )
-        try:
-            action = np.asarray(action, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"action must be numbers of shape {self.action_space.shape}, got {action!r}"
-            ) from None
-        if action.shape != self.action_space.shape:
-            raise ValueError(
-                f"action must have shape {self.action_space.shape}, got {action.shape}"
-            )
+        action = as_actions("action", action, self.action_space.shape)
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action contains NaN or inf: {action.tolist()}")
         before = self.get_state()

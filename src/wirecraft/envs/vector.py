@@ -32,7 +32,6 @@ diverged environment is rolled back, flagged (``diverged``) and reset while the 
 
 from __future__ import annotations
 
-import copy
 import os
 
 import gymnasium as gym
@@ -48,8 +47,10 @@ from wirecraft.envs.env import (
     STATE_SPEC,
     SUBSTEPS,
     WireCraftEnv,
+    as_actions,
     check_options,
     check_seed,
+    spec_with_length,
     within_limits,
 )
 from wirecraft.tasks.base import weighted_reward
@@ -174,16 +175,7 @@ class WireCraftVectorEnv(VectorEnv):
                 "WireCraftVectorEnv.step: call reset() first; environments "
                 f"{np.flatnonzero(self._needs_reset).tolist()} were never reset"
             )
-        try:
-            actions = np.asarray(actions, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"actions must be numbers of shape {self.action_space.shape}, got {actions!r}"
-            ) from None
-        if actions.shape != self.action_space.shape:
-            raise ValueError(
-                f"actions must have shape {self.action_space.shape}, got {actions.shape}"
-            )
+        actions = as_actions("actions", actions, self.action_space.shape)
         bad = np.flatnonzero(~np.all(np.isfinite(actions), axis=1))
         if bad.size:
             raise ValueError(f"actions of environments {bad.tolist()} contain NaN or inf")
@@ -243,13 +235,7 @@ class WireCraftVectorEnv(VectorEnv):
     def spec(self):
         """gymnasium's ``EnvSpec`` (set by ``gymnasium.make_vec``), its ``max_episode_steps``
         the environments' episode length."""
-        spec = self._spec
-        steps = self.envs[0].max_steps
-        if spec is None or spec.max_episode_steps == steps:
-            return spec
-        spec = copy.copy(spec)
-        spec.max_episode_steps = steps
-        return spec
+        return spec_with_length(self._spec, self.envs[0].max_steps)
 
     @spec.setter
     def spec(self, spec) -> None:

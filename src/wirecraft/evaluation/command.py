@@ -196,6 +196,7 @@ def print_summary(payload: dict, seconds: float) -> None:
 
 def run(args, task_kwargs, write_json) -> int:
     from wirecraft.cli import only_with, usage_error
+    from wirecraft.envs.env import steps_per_frame
     from wirecraft.evaluation import report as report_mod
     from wirecraft.evaluation import sweep as sweep_mod
     from wirecraft.evaluation.policies import BUILTIN_POLICIES as BUILT_IN_POLICIES
@@ -227,8 +228,11 @@ def run(args, task_kwargs, write_json) -> int:
         )
     if args.policy in BUILT_IN_POLICIES or _lerobot_config(Path(args.policy)) is None:
         only_with(args, "a LeRobot policy directory", "--fps")
-    if args.fps is not None and 60 % args.fps:
-        raise usage_error("--fps", f"must divide the 60 Hz control rate, got {args.fps}")
+    if args.fps is not None:
+        try:
+            steps_per_frame(args.fps)
+        except ValueError as err:
+            raise usage_error("--fps", str(err)) from None
     if args.label is not None and not args.label.strip():
         raise usage_error("--label", "must not be empty")
     retain_force = DEFAULT_FORCE if args.retain_force is None else args.retain_force

@@ -157,7 +157,9 @@ class DatasetActionPolicy:
     def __init__(self, env, fps: float) -> None:
         self.envs = unwrap_envs(env)
         self.fps = fps
-        self.steps_per_frame = frame_steps(fps)
+        from wirecraft.envs.env import steps_per_frame
+
+        self.steps_per_frame = steps_per_frame(fps)
         self._step = 0
         self._targets: np.ndarray | None = None
 
@@ -275,22 +277,6 @@ class LeRobotPolicy(DatasetActionPolicy):
         with self.torch.inference_mode():
             action = self.post(self.policy.select_action(self.pre(self._batch(obs))))
         return np.asarray(action.detach().cpu().numpy(), dtype=float)
-
-
-def frame_steps(fps) -> int:
-    """Control steps per dataset frame at ``fps`` frames/s: ``CONTROL_HZ / fps``, which must
-    be a whole number."""
-    from wirecraft.envs.env import CONTROL_HZ
-
-    ok = not isinstance(fps, bool) and isinstance(fps, (int, float)) and fps > 0
-    if ok and float(CONTROL_HZ / fps).is_integer():
-        return int(CONTROL_HZ // fps)
-    divisors = [d for d in range(1, CONTROL_HZ + 1) if CONTROL_HZ % d == 0]
-    raise ValueError(
-        f"fps must divide the {CONTROL_HZ} Hz control rate (one of "
-        f"{', '.join(map(str, divisors))}) so that each action is held for a whole number of "
-        f"control steps; got {fps!r}"
-    )
 
 
 def checkpoint_fps(path: str | Path) -> float | None:
@@ -527,7 +513,6 @@ __all__ = [
     "ScriptedPolicy",
     "ZeroPolicy",
     "checkpoint_fps",
-    "frame_steps",
     "joint_action",
     "load_policy",
     "policy_env_kwargs",

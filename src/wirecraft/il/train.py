@@ -24,9 +24,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from wirecraft.datasets.collect import SETTINGS_FILE as COLLECT_FILE
+from wirecraft.datasets.writer import INFO_FILE
+
 RUN_FILE = "wirecraft_il.json"
-COLLECT_FILE = Path("meta") / "wirecraft_collect.json"
-INFO_FILE = Path("meta") / "info.json"
 TRAINABLE = ("act", "diffusion")
 # Accepted, but only as fine-tuning of a local checkpoint (--pretrained, lerobot-train's
 # --policy.path), whose backbones must be on this machine (check_backbones).  SmolVLA can be

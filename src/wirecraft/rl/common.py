@@ -27,14 +27,6 @@ PROGRESS_FILE = "progress.csv"
 EPISODE_FLAGS = ("success", "reach_success", "insert_success")
 
 
-def write_json_atomic(path: Path, payload: dict) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2, sort_keys=True) + "\n")
-    os.replace(tmp, path)
-
-
 def find_run_dir(path: str | os.PathLike) -> Path:
     """The run directory of ``path``: the directory itself, or the one holding a checkpoint
     file (directly or in its ``checkpoints/``)."""

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from wirecraft.cli_args import write_json
 from wirecraft.provenance import provenance, source_commit
 from wirecraft.rl import ALGORITHMS  # noqa: E402
 from wirecraft.rl.common import (
@@ -28,7 +29,6 @@ from wirecraft.rl.common import (
     env_control,
     find_run_dir,
     read_run,
-    write_json_atomic,
 )
 from wirecraft.rl.config import config_class, config_from_dict, config_to_dict, replace
 
@@ -102,7 +102,7 @@ class Run:
         self.data = data
 
     def save(self) -> None:
-        write_json_atomic(self.dir / RUN_FILE, self.data)
+        write_json(self.dir / RUN_FILE, self.data)
 
     def checkpoint_written(self, path: Path, step: int, infos: dict) -> None:
         del step

@@ -62,14 +62,12 @@ def env_control(task: str, action_type: str, control: str | None) -> str:
 
 
 def steps_per_frame(fps: int) -> int:
-    from wirecraft.envs.env import CONTROL_HZ
+    """``wirecraft.envs.env.steps_per_frame`` of an integer ``fps`` (LeRobot's env option)."""
+    from wirecraft.envs import env
 
-    if isinstance(fps, bool) or not isinstance(fps, int) or fps < 1 or CONTROL_HZ % fps:
-        divisors = ", ".join(str(d) for d in range(1, CONTROL_HZ + 1) if CONTROL_HZ % d == 0)
-        raise ValueError(
-            f"fps must divide the {CONTROL_HZ} Hz control rate ({divisors}); got {fps!r}"
-        )
-    return CONTROL_HZ // fps
+    if isinstance(fps, bool) or not isinstance(fps, int):
+        raise ValueError(f"fps must be an integer dividing {env.CONTROL_HZ}; got {fps!r}")
+    return env.steps_per_frame(fps)
 
 
 class WireCraftLeRobotEnv(gym.Env):
