@@ -23,8 +23,8 @@ from tqdm import tqdm
 
 import wirecraft
 from wirecraft.experts.routing import RoutingExpert, RoutingExpertConfig
+from wirecraft.geometry import arc_lengths, resample
 from wirecraft.rl.config import parse_override
-from wirecraft.tasks.assembly import arc_lengths, resample
 
 OFFSET_BINS_MM = (-17, -12, -9, -5, -1, 3, 6, 9, 12, 17)
 STEEP_DEG = 15.0

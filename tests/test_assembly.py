@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 import wirecraft
+from wirecraft.assets.assembly import WireAssembly
 from wirecraft.assets.connectors import CONNECTORS, add_plug, make_connector
 from wirecraft.assets.wires import WIRE_MODELS, WireConfig, add_wire
 from wirecraft.scene import add_table, compile_spec, new_spec
-from wirecraft.tasks.assembly import WireAssembly
 
 FALL_SECONDS = 10.0
 SETTLED_AFTER = 9.0  # s: the last second must be calm

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import wirecraft
+from wirecraft import geometry as G
 from wirecraft.assets.robots import kinematics as K
 from wirecraft.experts import expert_class
 from wirecraft.tasks.frame import Frame
@@ -16,32 +17,32 @@ RNG = np.random.default_rng(0)
 
 
 def random_rotations(n):
-    return np.stack([K.axis_angle_to_mat(v) for v in RNG.normal(size=(n, 3)) * 1.5])
+    return np.stack([G.axis_angle_to_mat(v) for v in RNG.normal(size=(n, 3)) * 1.5])
 
 
 def test_batched_rotation_helpers_match_mujoco_and_the_scalar_forms():
     rots = random_rotations(64)
     # Rotations by ~pi exercise every branch of the quaternion extraction.
-    rots = np.concatenate([rots, [K.axis_angle_to_mat(np.array(a) * np.pi) for a in np.eye(3)]])
-    quats = K.mats_to_quats(rots)
+    rots = np.concatenate([rots, [G.axis_angle_to_mat(np.array(a) * np.pi) for a in np.eye(3)]])
+    quats = G.mats_to_quats(rots)
     for rot, quat in zip(rots, quats, strict=True):
-        reference = K.mat_to_quat(rot)  # mju_mat2Quat
+        reference = G.mat_to_quat(rot)  # mju_mat2Quat
         assert np.allclose(quat, reference, atol=1e-12) or np.allclose(quat, -reference, atol=1e-12)
     # Back through mju_quat2Mat, from q, from -q and from a quaternion of another length.
     for sign, scale in ((1.0, 1.0), (-1.0, 1.0), (1.0, 2.5)):
-        mats = K.quats_to_mats(sign * scale * quats)
+        mats = G.quats_to_mats(sign * scale * quats)
         for quat, mat in zip(quats, mats, strict=True):
-            np.testing.assert_allclose(mat, K.quat_to_mat(quat), atol=1e-12)
-    np.testing.assert_allclose(K.quats_to_mats(quats), rots, atol=1e-12)
+            np.testing.assert_allclose(mat, G.quat_to_mat(quat), atol=1e-12)
+    np.testing.assert_allclose(G.quats_to_mats(quats), rots, atol=1e-12)
     vecs = RNG.normal(size=(32, 3))
     vecs[0] = 0.0  # no rotation
-    mats = K.axis_angle_to_mats(vecs)
+    mats = G.axis_angle_to_mats(vecs)
     for vec, mat in zip(vecs, mats, strict=True):
-        np.testing.assert_allclose(mat, K.axis_angle_to_mat(vec), atol=1e-14)
+        np.testing.assert_allclose(mat, G.axis_angle_to_mat(vec), atol=1e-14)
     other = random_rotations(len(rots))
-    errors = K.rotation_errors(rots, other)
+    errors = G.rotation_errors(rots, other)
     for target, current, error in zip(rots, other, errors, strict=True):
-        np.testing.assert_allclose(error, K.rotation_error(target, current), atol=1e-12)
+        np.testing.assert_allclose(error, G.rotation_error(target, current), atol=1e-12)
 
 
 def test_batched_damped_least_squares_matches_the_scalar_solver_at_joint_limits():
@@ -177,7 +178,7 @@ def test_synced_environments_mirror_the_batch_and_unsynced_ones_do_not_cost_a_co
         np.testing.assert_array_equal(
             synced.envs[i].controller.target_pos, synced.controls.target_pos[i]
         )
-        assert synced.envs[i]._steps == 3
+        assert synced.envs[i].elapsed_steps == 3
         assert not np.array_equal(state_of(lazy, i), lazy.batch.state[i])
     lazy.render()  # rendering brings them up to date first
     for i in range(2):

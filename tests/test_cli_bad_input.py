@@ -184,7 +184,7 @@ COLLECT = [
     ("--out ds --task knitting", "--task"),
     ("--out ds --task routing --clearance 0.01", "--clearance"),
     ("--out ds --num-clips 2", "--num-clips"),
-    ("--out ds --task seating --connector usb_a", "--connector"),
+    ("--out ds --task seating --connector usb_c", "--connector"),
     ("--out ds --channel curved", "--channel"),
     ("--out ds --robot r2d2", "--robot"),
     ("--out ds --wire spaghetti", "--wire"),

@@ -154,7 +154,7 @@ def test_bad_warm_start_settings_are_refused_before_anything_is_written(tmp_path
     cases = [
         ("routing", {}, {"dagger_init_iterations": 1}, "insertion task"),
         ("insertion", {"control": "joint"}, {"dagger_init_iterations": 1}, "cartesian"),
-        ("seating", {}, {"actor_inputs": "relative"}, "insertion state"),
+        ("seating", {}, {"actor_inputs": "relative"}, "reactive expert's task"),
     ]
     for task, env_kwargs, overrides, message in cases:
         with pytest.raises(ValueError, match=message):

@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 
 import wirecraft
-from wirecraft.assets.robots.kinematics import quat_near
 from wirecraft.cli import main
 from wirecraft.datasets import schema
 from wirecraft.datasets.collect import (
@@ -35,6 +34,7 @@ from wirecraft.datasets.recorder import Episode
 from wirecraft.datasets.writer import DEFAULT_REPO_ID, EpisodeWriter, read_commit
 from wirecraft.envs.vector import env_seed
 from wirecraft.experts import InsertionExpert
+from wirecraft.geometry import quat_near
 from wirecraft.golden import golden_file_sha256
 
 SEED = 7
@@ -147,7 +147,7 @@ def test_source_codes_round_trip_and_reject_unknown_names():
     with pytest.raises(ValueError, match="unknown data source"):
         schema.source_code("simulated")
     with pytest.raises(ValueError, match="image_size"):
-        schema.features_for("ur5", 8)
+        schema.features_for("ur5", 8, task="insertion")
 
 
 def test_quaternion_is_unit_and_near_the_reference_hemisphere():

@@ -19,11 +19,11 @@ from gymnasium.utils.env_checker import check_env
 import wirecraft
 from wirecraft.assets.connectors import CONNECTORS
 from wirecraft.assets.robots import ROBOTS
-from wirecraft.assets.robots.kinematics import rot_z
 from wirecraft.assets.wires import WIRE_MODELS
 from wirecraft.control import CONTROLLERS
+from wirecraft.geometry import rot_z
 from wirecraft.tasks import TASKS
-from wirecraft.tasks.seating import CHANNEL_YAW
+from wirecraft.tasks.seating.task import CHANNEL_YAW
 
 TASK_NAMES = TASKS.names()
 WIRE_NAMES = WIRE_MODELS.names()

@@ -12,6 +12,8 @@ from wirecraft.evaluation import diagnostics, protocol
 from wirecraft.evaluation.policies import ScriptedPolicy
 from wirecraft.experts import InsertionExpert, InsertionExpertConfig
 from wirecraft.experts.fsm import unwrap_envs
+from wirecraft.tasks.insertion import InsertionOptions
+from wirecraft.tasks.insertion import metrics as insertion_metrics
 
 PLAIN = InsertionExpertConfig(diversity=False)  # no pick-and-drop or pauses: one clear story
 
@@ -207,7 +209,7 @@ def test_a_tilted_plug_in_a_tight_socket_is_jammed():
     assert episode["reach_success"] and not episode["insert_success"]
     assert episode["failure"] == "jammed"
     assert 0.0 < episode["max_insertion_depth"] < 0.012  # stuck part-way in
-    assert episode["max_insertion_force"] >= diagnostics.JAM_FORCE
+    assert episode["max_insertion_force"] >= insertion_metrics.JAM_FORCE
 
 
 # -- the rules on hand-made traces -----------------------------------------------------------------
@@ -228,7 +230,7 @@ def _held(steps: int, start: int, stop: int) -> np.ndarray:
 
 
 def test_a_brush_of_the_pads_is_not_a_grasp():
-    ctx = diagnostics.LabelContext("insertion", False, 0.003)
+    ctx = diagnostics.LabelContext("insertion", False, InsertionOptions(clearance=0.003))
     brief = _trace("insertion", held=_held(100, 10, 12))
     assert diagnostics.label_failure(brief, ctx) == "no_grasp"
     firm = _trace("insertion", held=_held(100, 10, 10 + diagnostics.HOLD_STEPS))
@@ -264,7 +266,7 @@ def test_a_collision_after_a_misaligned_attempt_does_not_hide_the_misalignment()
     lateral = np.full(steps, 0.02)
     collision = np.zeros(steps)
     collision[80:] = 50.0  # the pads hit the port after the failed attempt
-    ctx = diagnostics.LabelContext("insertion", False, 0.003)
+    ctx = diagnostics.LabelContext("insertion", False, InsertionOptions(clearance=0.003))
     trace = _trace(
         "insertion",
         held=_held(steps, 10, 100),
@@ -293,5 +295,5 @@ def test_every_label_is_documented_per_task():
     from pathlib import Path
 
     doc = (Path(__file__).parents[1] / "docs" / "evaluation.md").read_text()
-    for label in diagnostics.TAXONOMY:
+    for label in diagnostics.all_labels():
         assert f"`{label}`" in doc

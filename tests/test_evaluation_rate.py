@@ -88,7 +88,7 @@ def replay(seed, actions, fps, frames):
         policy_kwargs={"actions": np.asarray(actions).tolist(), "fps": fps},
     )
     [result] = run_chunk(config, [EpisodeSpec(0, 0, seed)])
-    _, policy = protocol._build(config)
+    _, policy = protocol.environment_and_policy(config)
     return result.summary, policy
 
 

@@ -8,7 +8,7 @@ import pytest
 
 import wirecraft
 from wirecraft.evaluation import retention
-from wirecraft.tasks.insertion import INSERTION_AXIS
+from wirecraft.tasks.insertion.task import INSERTION_AXIS
 
 
 def seated_plug(clearance: float, seed: int = 0, connector: str = "ethernet"):

@@ -17,9 +17,9 @@ import pytest
 
 import wirecraft
 from wirecraft.assets.wires import WireConfig
-from wirecraft.experts.seating import SeatingExpert, SeatingExpertConfig
+from wirecraft.experts.seating import WIRE_SETTINGS, SeatingExpert, SeatingExpertConfig
+from wirecraft.geometry import arc_lengths
 from wirecraft.sensors import deepest_penetration
-from wirecraft.tasks.assembly import arc_lengths
 
 EPISODE_STEPS = 480
 
@@ -244,9 +244,10 @@ def test_press_profile_keeps_the_turned_pad_between_the_walls():
 def test_pressing_pad_goes_below_a_seated_wire_top_only_for_the_soft_fem_wire(wire):
     """Where the pad goes down, its bottom stops at a seated wire's top (two radii above the
     floor, from the wire's own config) less the squeeze of that wire model: none for the
-    capsules of the articulated and rod wires, ``press_squeeze_fem`` for the FEM wire."""
+    capsules of the articulated and rod wires, the FEM wire's own (``wire_settings``)."""
     env = wirecraft.make("seating", channel="straight", wire=wire, control=SeatingExpert.CONTROL)
-    config = SeatingExpertConfig(press_squeeze=0.0002, press_squeeze_fem=0.0007)
+    settings = {"rod": {"tuck": False}, "fem": {"press_squeeze": 0.0007}}
+    config = SeatingExpertConfig(press_squeeze=0.0002, wire_settings=settings)
     expert = SeatingExpert(env, config)
     env.reset(seed=0)
     expert.reset()
@@ -337,8 +338,11 @@ def test_press_passes_follow_their_directions():
         ("lay_wall_reach", -0.001),
         ("lay_table_clearance", -0.001),
         ("press_squeeze", float("nan")),
-        ("press_squeeze_fem", float("inf")),
-        ("press_squeeze_fem", "deep"),
+        ("wire_settings", {"fem": {"press_squeeze": float("inf")}}),
+        ("wire_settings", {"fem": {"press_squeeze": "deep"}}),
+        ("wire_settings", {"fem": {"squeeze": 0.001}}),
+        ("wire_settings", {"cable": {"press_squeeze": 0.001}}),
+        ("wire_settings", ["fem"]),
         ("seed", -1),  # the benchmark's --chained-expert-seed
         ("lay_height", -0.01),
         ("press_from", float("nan")),
@@ -346,7 +350,7 @@ def test_press_passes_follow_their_directions():
         ("carry_speed", 0.0),
         ("press_speed", -0.005),
         ("release_open", 0.0),
-        ("press_lag_flex", -0.008),
+        ("wire_settings", {"rod": {"press_lag": -0.008}}),
         ("press_lag_lift", -0.006),
         ("press_lag_lift", float("nan")),
         ("press_lag_slowdown", 0.0),
@@ -464,7 +468,7 @@ def test_a_wire_sprung_out_over_the_walls_calls_for_a_tuck(monkeypatch):
         ("tuck_outside", -0.001),
         ("tuck_margin", -0.001),
         ("tuck_speed", 0.0),
-        ("tuck_wires", ("articulated", "cable")),
+        ("wire_settings", {"rod": {"tuck": "yes"}}),
     ],
 )
 def test_bad_tuck_settings_are_refused(field, value):
@@ -473,12 +477,12 @@ def test_bad_tuck_settings_are_refused(field, value):
 
 
 def test_the_tuck_is_used_on_the_wire_models_it_names(monkeypatch):
-    """The tuck helped the articulated wire and not the rod (held out), so by default only the
-    articulated wire gets one: a rod lying 25 mm beside the channel above the wall tops calls
-    for none, unless ``tuck_wires`` names the rod."""
-    for tuck_wires, expected in ((("articulated",), False), (("articulated", "rod"), True)):
+    """The tuck helped the articulated wire and not the rod (held out), so by default the rod
+    gets none (``WIRE_SETTINGS``): a rod lying 25 mm beside the channel above the wall tops
+    calls for none, unless its settings turn the tuck on."""
+    for rod, expected in (({"tuck": False}, False), ({}, True)):
         env = wirecraft.make("seating", channel="curved", wire="rod", control="cartesian")
-        expert = SeatingExpert(env, SeatingExpertConfig(tuck_wires=tuck_wires))
+        expert = SeatingExpert(env, SeatingExpertConfig(wire_settings={"rod": rod}))
         env.reset(seed=0)
         expert.reset()
         u = env.unwrapped
@@ -486,7 +490,7 @@ def test_the_tuck_is_used_on_the_wire_models_it_names(monkeypatch):
         height = task.placed.config.wall_height + cfg.press_clearance
         beside = channel_path(task, height + task.assembly.wire.config.radius, offset=0.025)
         monkeypatch.setattr(u, "wire_points", lambda points=beside: points.copy())
-        assert expert._needs_tuck(0) is expected
+        assert (expert.config.tuck and expert._needs_tuck(0)) is expected
         env.close()
 
 
@@ -763,10 +767,11 @@ def test_a_third_pass_seats_a_wire_that_two_left_raised():
 def test_the_pad_does_not_run_ahead_of_a_rod():
     """Rod, curved seed 2059 (expert seeded 2059): with the articulated wire's 2 cm lag the
     pad fell 7-24 mm behind its goal, dragged the rod out of the channel and the simulation
-    diverged; with ``press_lag_flex`` (8 mm) the first pass seats it."""
+    diverged; with the rod's own ``press_lag`` (8 mm, ``WIRE_SETTINGS``) the first pass seats it."""
     info = run("curved", 2059, SeatingExpertConfig(seed=2059), wire="rod")[0]
     assert info["success"] and not info["diverged"]
-    info = run("curved", 2059, SeatingExpertConfig(seed=2059, press_lag_flex=0.02), wire="rod")[0]
+    rigid_lag = SeatingExpertConfig(seed=2059, wire_settings={"rod": {"tuck": False}})
+    info = run("curved", 2059, rigid_lag, wire="rod")[0]
     assert info["diverged"] and not info["success"]
 
 
@@ -797,7 +802,7 @@ def test_the_fem_wire_stays_in_the_curved_channel_once_its_swing_is_damped():
 
 
 def test_the_fem_wire_is_tucked_only_when_it_lies_far_beside_the_channel(monkeypatch):
-    """The FEM wire's tuck waits for a wire ``tuck_outside_fem`` outside the inner wall: one
+    """The FEM wire's tuck waits for a wire its ``tuck_outside`` outside the inner wall: one
     25 mm beside the channel (which the articulated wire's tuck pushes back) is left to the
     pressing pass, which draws it in; one 45 mm out is tucked."""
     env, expert = curved_expert(wire="fem")
@@ -806,9 +811,10 @@ def test_the_fem_wire_is_tucked_only_when_it_lies_far_beside_the_channel(monkeyp
     radius = task.assembly.wire.config.radius
     channel = task.placed.config
     above = channel.wall_height + cfg.press_clearance + radius  # centre height over the floor
-    assert "fem" in cfg.tuck_wires
-    assert channel.inner_width / 2 + cfg.tuck_outside < 0.025
-    assert channel.inner_width / 2 + cfg.tuck_outside_fem > 0.025
+    assert cfg.tuck
+    articulated = SeatingExpertConfig().for_wire("articulated")
+    assert channel.inner_width / 2 + articulated.tuck_outside < 0.025
+    assert channel.inner_width / 2 + cfg.tuck_outside > 0.025
 
     def lay(offset):
         points = channel_path(task, above, offset=offset)
@@ -816,7 +822,7 @@ def test_the_fem_wire_is_tucked_only_when_it_lies_far_beside_the_channel(monkeyp
 
     lay(0.025)
     assert not expert._needs_tuck(0)
-    lay(channel.inner_width / 2 + cfg.tuck_outside_fem + 0.004)
+    lay(channel.inner_width / 2 + cfg.tuck_outside + 0.004)
     assert expert._needs_tuck(0)
     assert cfg.press_from < expert.tuck_arc[0]
 
@@ -830,7 +836,9 @@ def test_the_fem_wire_sprung_far_out_is_tucked_back():
     info, _, phases, _, _ = run("curved", 2003, SeatingExpertConfig(seed=2003), wire="fem")
     assert {"tuck_approach", "tuck_push", "press"} <= phases
     assert info["success"] and not info["diverged"]
-    untucked = SeatingExpertConfig(seed=2003, tuck_wires=("articulated",))
+    untucked = SeatingExpertConfig(
+        seed=2003, wire_settings={"fem": {**WIRE_SETTINGS["fem"], "tuck": False}}
+    )
     info, _, phases, _, _ = run("curved", 2003, untucked, wire="fem")
     assert "tuck_push" not in phases
     assert not info["success"] and info["fraction_inside"] < 0.3

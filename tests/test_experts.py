@@ -257,7 +257,7 @@ def test_integral_action_brings_a_sagging_arm_within_the_pre_insert_tolerance(mo
 def test_the_push_is_held_then_backed_off_as_the_insertion_force_grows(ethernet):
     import dataclasses
 
-    from wirecraft.assets.robots.kinematics import rotation_error
+    from wirecraft.geometry import rotation_error
 
     expert = InsertionExpert(ethernet, InsertionExpertConfig(diversity=False))
     ethernet.reset(seed=0)

@@ -89,12 +89,12 @@ def fingerprints_by_setting() -> dict[str, dict]:
 
 def test_every_golden_cell_is_the_same_episode_under_every_kernel(fingerprints_by_setting):
     (first_name, first), *others = fingerprints_by_setting.items()
-    assert set(first) == set(golden.CELLS)
+    assert set(first) == set(golden.cells())
     differ = []
     for name, prints in others:
         differ += [
             f"{cell}: {first_name} vs {name} ({', '.join(golden.differences({cell: prints[cell]}, {cell: first[cell]}))})"  # noqa: E501
-            for cell in golden.CELLS
+            for cell in golden.cells()
             if prints[cell]["sha256"] != first[cell]["sha256"]
         ]
     assert not differ, "\n".join(differ)

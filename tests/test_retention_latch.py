@@ -15,7 +15,7 @@ from wirecraft.assets.connectors import CONNECTORS, make_connector
 from wirecraft.assets.connectors.base import RETENTION_PLAY
 from wirecraft.envs import env_seed
 from wirecraft.experts import InsertionExpert, InsertionExpertConfig
-from wirecraft.tasks.insertion import AXIAL_TOLERANCE
+from wirecraft.tasks.insertion.task import AXIAL_TOLERANCE
 
 OPEN = np.array([0, 0, 0, 0, 0, 0, -1.0])  # arm holds still, gripper open (far from the plug)
 # Published or typical figures (docs/assets.md, Retention), written out independently here.

@@ -12,12 +12,11 @@ import pytest
 import wirecraft
 from wirecraft import physics
 from wirecraft.assets.fixtures import ClipConfig, add_clip
+from wirecraft.geometry import resample
 from wirecraft.scene import compile_spec, new_spec
-from wirecraft.tasks.assembly import resample
-from wirecraft.tasks.routing import (
+from wirecraft.tasks.routing.task import (
     LANE_JITTER,
     LANE_X,
-    LANE_X_BY_ROBOT,
     LAYOUTS,
     LIP_INTERFERENCE,
     MAX_ROUTE,
@@ -94,7 +93,7 @@ def test_widowx_clips_lie_within_its_reach_with_the_same_draws(num_clips):
             ]
             assert not touching, (robot, seed, touching)
         env.close()
-    shift = LANE_X_BY_ROBOT["wxai"] - LANE_X
+    shift = 0.04 - LANE_X  # the WidowX AI's lane: its workspace ends at x = 0.10 m
     assert shift < 0
     for (ur5_clips, *ur5_rest), (wx_clips, *wx_rest) in zip(
         sampled["ur5"], sampled["wxai"], strict=True

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import wirecraft
-from wirecraft.tasks.assembly import arc_lengths
+from wirecraft.geometry import arc_lengths
 
 LANE_X = 0.10
 RISE = math.radians(25.0)  # slope at which a hand-placed cable leaves the channel

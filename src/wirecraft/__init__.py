@@ -22,46 +22,57 @@ mujoco.set_mju_user_warning(logging.getLogger("wirecraft.mujoco").warning)
 
 __version__ = "0.1.0"
 
-# Task family -> gymnasium id.  The environment modules load only when an env is made.
-TASK_IDS = {
-    "insertion": "WireCraft/ConnectorInsertion-v0",
-    "routing": "WireCraft/ClipRouting-v0",
-    "seating": "WireCraft/ChannelSeating-v0",
-}
 EPISODE_STEPS = 480  # 8 s at 60 Hz
 
-# The registered specs leave max_episode_steps None: the length depends on the keywords
-# (episode_seconds, max_episode_steps, routing's num_clips), and the environment keeps it itself,
-# so that no TimeLimit wrapper with another length sits on top.  A made environment's
-# env.spec.max_episode_steps is its length (480 by default); gymnasium.make(id,
-# max_episode_steps=N) sets it.  gymnasium.make_vec(id, n, **kwargs) builds make_vec's
-# batched vector environment (the vector entry point, gymnasium's default where there is one).
-for _task, _id in TASK_IDS.items():
-    if _id not in gym.registry:
-        gym.register(
-            id=_id,
-            entry_point="wirecraft.envs:WireCraftEnv",
-            vector_entry_point="wirecraft:vector_entry_point",
-            kwargs={"task": _task},
-            disable_env_checker=True,
-        )
+
+def register_gym_ids() -> dict[str, str]:
+    """Register every task family of ``wirecraft.tasks.TASKS`` (one registered after import
+    too) with gymnasium; returns family -> gymnasium id.
+
+    The registered specs leave max_episode_steps None: the length depends on the task options
+    (episode_seconds, max_episode_steps, a family's own length such as routing's per clip), and
+    the environment keeps it itself, so that no TimeLimit wrapper with another length sits on
+    top.  A made environment's env.spec.max_episode_steps is its length (480 by default);
+    gymnasium.make(id, max_episode_steps=N) sets it.  gymnasium.make_vec(id, n, **kwargs) builds
+    make_vec's batched vector environment (the vector entry point, gymnasium's default where
+    there is one)."""
+    from wirecraft.tasks import TASKS
+
+    ids = {}
+    for family in TASKS:
+        gym_id = ids[family] = TASKS.get(family).gym_id
+        if gym_id not in gym.registry:
+            gym.register(
+                id=gym_id,
+                entry_point="wirecraft.envs:WireCraftEnv",
+                vector_entry_point="wirecraft:vector_entry_point",
+                kwargs={"task": family},
+                disable_env_checker=True,
+            )
+    return ids
 
 
-def _resolve(task: str) -> str:
-    if isinstance(task, str) and task in TASK_IDS:
-        return TASK_IDS[task]
-    if isinstance(task, str) and task in TASK_IDS.values():
-        return task
-    valid = ", ".join([*TASK_IDS, *TASK_IDS.values()])
+# Task family -> gymnasium id, as registered on import.
+TASK_IDS = register_gym_ids()
+
+
+def family_of(task: str) -> str:
+    """The family name of ``task`` (a family or its gymnasium id); ValueError listing both."""
+    ids = register_gym_ids()
+    for family, gym_id in ids.items():
+        if task in (family, gym_id):
+            return family
+    valid = ", ".join([*ids, *ids.values()])
     raise ValueError(f"unknown task {task!r}; valid: {valid}")
 
 
 def make(task: str, **kwargs) -> gym.Env:
-    """Build a WireCraft environment: ``task`` is insertion, routing, seating or a full id."""
+    """Build a WireCraft environment: ``task`` is a family (``wirecraft.tasks.TASKS``) or its
+    gymnasium id."""
     from wirecraft import validation
     from wirecraft.envs.env import RENDER_MODES
 
-    task_id = _resolve(task)
+    task_id = register_gym_ids()[family_of(task)]
     # gym.make reads render_mode before the environment can check it.
     validation.one_of("WireCraftEnv", "render_mode", kwargs.get("render_mode"), RENDER_MODES)
     return gym.make(task_id, **kwargs)
@@ -99,8 +110,7 @@ def make_vec(
         raise ValueError(f"unknown arrays {arrays!r}; valid: {', '.join(ARRAY_TYPES)}")
     if device is not None and arrays != "torch":
         raise ValueError(f"make_vec: device={device!r} is for arrays='torch' only")
-    name = next(k for k, v in TASK_IDS.items() if v == _resolve(task))
-    env = WireCraftVectorEnv(name, num_envs, threads=threads, **kwargs)
+    env = WireCraftVectorEnv(family_of(task), num_envs, threads=threads, **kwargs)
     if arrays == "torch":
         from wirecraft.envs.vector import TorchArrays
 
@@ -114,4 +124,13 @@ def vector_entry_point(num_envs: int, task: str, **kwargs):
     return make_vec(task, num_envs, **kwargs)
 
 
-__all__ = ["ARRAY_TYPES", "BACKENDS", "TASK_IDS", "make", "make_vec", "vector_entry_point"]
+__all__ = [
+    "ARRAY_TYPES",
+    "BACKENDS",
+    "TASK_IDS",
+    "family_of",
+    "make",
+    "make_vec",
+    "register_gym_ids",
+    "vector_entry_point",
+]

@@ -59,30 +59,53 @@ def only_with(args, where: str, *flags: str) -> None:
 
 
 # -- task flags shared by collect, eval and train -------------------------------------------------
-# Flag -> (keyword, type, task families that accept it).  None as families: every task.
-TASK_FLAGS: dict[str, tuple[str, Callable, tuple[str, ...] | None]] = {
-    "--robot": ("robot", str, None),
-    "--wire": ("wire", str, None),
-    "--control": ("control", str, None),
+# Environment flags every task takes: flag -> (keyword, type, the valid names or None).
+ENV_FLAGS: dict[str, tuple[str, Callable, Callable[[], list[str]] | None]] = {
+    "--robot": ("robot", str, lambda: _registry_names("wirecraft.assets.robots", "ROBOTS")),
+    "--wire": ("wire", str, lambda: _registry_names("wirecraft.assets.wires", "WIRE_MODELS")),
+    "--control": ("control", str, lambda: _registry_names("wirecraft.control", "CONTROLLERS")),
     "--image-size": ("image_size", number(16, min(FRAMEBUFFER), integer=True), None),
-    "--connector": ("connector", str, ("insertion", "routing")),
-    "--clearance": ("clearance", number(0), ("insertion",)),
-    "--num-clips": ("num_clips", number(1, 64, integer=True), ("routing",)),
-    "--clip-opening": ("clip_opening", number(0, low_open=True), ("routing",)),
-    "--channel": ("channel", str, ("seating",)),
 }
 
 
-def add_task_args(p: argparse.ArgumentParser, *, default_task: str | None = "insertion") -> None:
-    """``--task`` and one flag per environment keyword (same names in every command)."""
+def _registry_names(module: str, registry: str) -> list[str]:
+    import importlib
+
+    return getattr(importlib.import_module(module), registry).names()
+
+
+def task_flags() -> dict[str, tuple[str, Callable, Callable[[], list[str]] | None, tuple]]:
+    """Flag -> (keyword, type, valid names or None, families that take it; () = every task):
+    the environment flags, then one per option field of every registered family."""
+    import dataclasses
+
+    from wirecraft.tasks import TASKS
+
+    flags = {flag: (*spec, ()) for flag, spec in ENV_FLAGS.items()}
+    for family in TASKS:
+        for f in dataclasses.fields(TASKS.get(family).Options):
+            flag = "--" + f.name.replace("_", "-")
+            if flag in ENV_FLAGS:
+                raise ValueError(f"{family}: option {f.name!r} shadows the environment's {flag}")
+            _, kind, names, families = flags.get(
+                flag, (f.name, f.metadata.get("parse", str), f.metadata.get("names"), ())
+            )
+            flags[flag] = (f.name, kind, names, (*families, family))
+    return flags
+
+
+def add_task_args(p: argparse.ArgumentParser, *, default_task: str | None = None) -> None:
+    """``--task`` and one flag per environment keyword and task option (same names in every
+    command); ``default_task`` None: the first registered family."""
+    from wirecraft.tasks import TASKS, default_family
+
     p.add_argument(
         "--task",
-        default=default_task,
-        required=default_task is None,
-        help="insertion, routing or seating (or a full gymnasium id)",
+        default=default_task or default_family(),
+        help=f"{', '.join(TASKS)} (or a full gymnasium id)",
     )
-    for flag, (key, kind, families) in TASK_FLAGS.items():
-        where = "every task" if families is None else ", ".join(families)
+    for flag, (key, kind, _, families) in task_flags().items():
+        where = ", ".join(families) if families else "every task"
         p.add_argument(flag, dest=key, type=kind, default=None, help=f"{key} ({where})")
 
 
@@ -91,42 +114,23 @@ def task_kwargs(args: argparse.Namespace) -> tuple[str, dict]:
     task does not take is an error, not silently ignored."""
     import wirecraft
 
-    task = args.task
-    family = next((k for k, v in wirecraft.TASK_IDS.items() if task in (k, v)), None)
-    if family is None:
-        raise usage_error(
-            "--task", f"unknown task {task!r}; valid: {', '.join(wirecraft.TASK_IDS)}"
-        )
+    try:
+        family = wirecraft.family_of(args.task)
+    except ValueError as err:
+        raise usage_error("--task", str(err)) from None
     kwargs = {}
-    for flag, (key, _, families) in TASK_FLAGS.items():
+    flags = task_flags()
+    for flag, (key, _, names, families) in flags.items():
         value = getattr(args, key, None)
         if value is None:
             continue
-        if families is not None and family not in families:
+        if families and family not in families:
             where = " and ".join(families)
             raise ValueError(f"{flag} does not apply to the {family} task (only {where})")
+        if names is not None and value not in (valid := names()):
+            raise usage_error(flag, f"unknown {key} {value!r}; valid: {', '.join(valid)}")
         kwargs[key] = value
-    for flag, (key, kind, _) in TASK_FLAGS.items():
-        if kind is str and key in kwargs and kwargs[key] not in (valid := _names(key)):
-            raise usage_error(flag, f"unknown {key} {kwargs[key]!r}; valid: {', '.join(valid)}")
     return family, kwargs
-
-
-def _names(key: str) -> list[str]:
-    """The valid values of a task flag that names something."""
-    if key == "robot":
-        from wirecraft.assets.robots import ROBOTS as names
-    elif key == "wire":
-        from wirecraft.assets.wires import WIRE_MODELS as names
-    elif key == "control":
-        from wirecraft.control import CONTROLLERS as names
-    elif key == "connector":
-        from wirecraft.assets.connectors import CONNECTORS as names
-    else:
-        from wirecraft.tasks.seating import CHANNELS
-
-        return list(CHANNELS)
-    return list(names.names())
 
 
 # -- list ---------------------------------------------------------------------------------------
@@ -140,7 +144,7 @@ def _list_args(p):
     "list", "list tasks, robots, control modes, connectors, wire models, parts, scenes", _list_args
 )
 def cmd_list(args) -> int:
-    from wirecraft import TASK_IDS
+    from wirecraft import register_gym_ids
     from wirecraft.assets.connectors import CONNECTORS
     from wirecraft.assets.export import part_names
     from wirecraft.assets.robots import ROBOTS
@@ -149,7 +153,7 @@ def cmd_list(args) -> int:
     from wirecraft.scenes import SCENES
 
     listing = {
-        "tasks": TASK_IDS,
+        "tasks": register_gym_ids(),
         "robots": ROBOTS.names(),
         "controls": CONTROLLERS.names(),
         "connectors": {
@@ -161,7 +165,7 @@ def cmd_list(args) -> int:
         "scenes": SCENES.names(),
     }
     print("tasks:")
-    for name, gym_id in TASK_IDS.items():
+    for name, gym_id in listing["tasks"].items():
         print(f"  {name:12s} {gym_id}")
     print("robots: " + ", ".join(listing["robots"]))
     print("control modes: " + ", ".join(listing["controls"]))
@@ -345,13 +349,14 @@ def cmd_bench(args) -> int:
         rows = robots.run(args.seconds)
         robots.print_table(rows)
     else:
-        from wirecraft import TASK_IDS
+        from wirecraft import register_gym_ids
         from wirecraft.benchmarks import envs
+        from wirecraft.tasks import default_family
 
-        tasks = args.task or ["insertion"]
+        tasks = args.task or [default_family()]
         for task in tasks:
-            if task not in TASK_IDS:
-                raise usage_error("--task", f"unknown task {task!r}; valid: {', '.join(TASK_IDS)}")
+            if task not in (ids := register_gym_ids()):
+                raise usage_error("--task", f"unknown task {task!r}; valid: {', '.join(ids)}")
         out = Path(args.out or check_path("--out", "out/bench", output_dir))
         wire_models = args.wire or ["articulated"]
         counts = args.num_envs or [1, 4, 16, 64, 256]
@@ -588,7 +593,7 @@ IL_FLAGS = (
     "--policy-arg",
     "--train-arg",
 )
-RL_FLAGS = ("--num-envs", "--threads", "--episode-seconds", "--set", "--task", *TASK_FLAGS)
+RL_FLAGS = ("--num-envs", "--threads", "--episode-seconds", "--set", "--task")  # + task flags
 
 
 def torch_device(text: str) -> str:
@@ -686,7 +691,7 @@ def cmd_train_il(args) -> int:
     """``wirecraft train act|diffusion|smolvla|pi05``: LeRobot's training (wirecraft.il)."""
     from wirecraft.il.train import parse_pairs, train
 
-    only_with(args, "RL algorithms (ppo, sacfd, vision-ppo)", *RL_FLAGS)
+    only_with(args, "RL algorithms (ppo, sacfd, vision-ppo)", *RL_FLAGS, *task_flags())
     train_args = parse_pairs("--train-arg", args.train_arg)
     if args.seed is not None:
         train_args["seed"] = str(args.seed)
@@ -727,7 +732,7 @@ def check_resumed_run(args) -> None:
         family, _ = task_kwargs(args)
         if family != run["task"]:
             raise usage_error("--task", f"{args.out} holds a {run['task']} run, not {family}")
-    given = {flag: getattr(args, key) for flag, (key, _, _) in TASK_FLAGS.items()}
+    given = {flag: getattr(args, spec[0]) for flag, spec in task_flags().items()}
     given["--episode-seconds"] = args.episode_seconds
     stored = run["env_kwargs"]
     for flag, value in given.items():
@@ -755,7 +760,10 @@ def cmd_train(args) -> int:
     if args.resume:
         check_resume(args.out, RUN_FILE, "RL run directory")
         check_resumed_run(args)
-    args.task = args.task or "insertion"
+    if args.task is None:
+        from wirecraft.tasks import default_family
+
+        args.task = default_family()
     task, env_kwargs = task_kwargs(args)
     if args.episode_seconds is not None:
         env_kwargs["episode_seconds"] = args.episode_seconds

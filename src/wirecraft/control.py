@@ -35,14 +35,8 @@ import numpy as np
 
 from wirecraft import validation
 from wirecraft.assets.robots import RobotHandle
-from wirecraft.assets.robots.kinematics import (
-    axis_angle_to_mats,
-    chain_jacobian,
-    dls_batch,
-    dls_limited_batch,
-    rotation_error,
-    rotation_errors,
-)
+from wirecraft.assets.robots.kinematics import chain_jacobian, dls_batch, dls_limited_batch
+from wirecraft.geometry import axis_angle_to_mats, rotation_error, rotation_errors
 from wirecraft.numerics import matmul, matvec, norm
 from wirecraft.registry import Registry
 

@@ -52,12 +52,14 @@ def build_drop_scene(wire_model: str):
     return spec, wire, channel
 
 
-# (task, keyword arguments): each is driven by its scripted expert (experts.expert_class).
-DEMO_TASKS = (
-    ("insertion", {"connector": "ethernet"}),
-    ("routing", {"num_clips": 1}),
-    ("seating", {"channel": "straight"}),
-)
+def demo_tasks() -> list[tuple[str, dict]]:
+    """(family, its ``demo_options``) of every registered family: each is driven by its
+    scripted expert (``experts.expert_class``)."""
+    from wirecraft.tasks import TASKS
+
+    return [(name, dict(TASKS.get(name).demo_options)) for name in TASKS]
+
+
 VIDEO_FPS = 30
 VIDEO_SIZE = 240
 SUCCESS_HOLD_STEPS = 30  # 0.5 s at 60 Hz: the episode (and its video) ends then
@@ -74,7 +76,7 @@ def run_task_demo(out_dir: str | Path, seed: int = 0) -> list[dict]:
     out_dir.mkdir(parents=True, exist_ok=True)
     rows, strips = [], []
     stride = CONTROL_HZ // VIDEO_FPS
-    for task, kwargs in tqdm(DEMO_TASKS, desc="demo tasks", unit="task"):
+    for task, kwargs in tqdm(demo_tasks(), desc="demo tasks", unit="task"):
         expert_cls = expert_class(task)
         env = wirecraft.make(task, control=expert_cls.CONTROL, **kwargs)
         u = env.unwrapped

@@ -34,25 +34,13 @@ STEPS = 480  # one default episode (8 s at 60 Hz)
 CHECKPOINT_EVERY = 60
 SEED = 7
 
-# name -> (task family, environment keywords). Every family with every wire model, each robot in
-# every family once, and the task options spread over the cells.
-CELLS: dict[str, tuple[str, dict]] = {
-    "insertion/articulated/ur5/ethernet": ("insertion", {"wire": "articulated", "robot": "ur5"}),
-    "insertion/rod/panda/displayport": (
-        "insertion",
-        {"wire": "rod", "robot": "panda", "connector": "displayport"},
-    ),
-    "insertion/fem/wxai/usb_a": (
-        "insertion",
-        {"wire": "fem", "robot": "wxai", "connector": "usb_a"},
-    ),
-    "routing/articulated/panda/1clip": ("routing", {"wire": "articulated", "robot": "panda"}),
-    "routing/rod/wxai/2clips": ("routing", {"wire": "rod", "robot": "wxai", "num_clips": 2}),
-    "routing/fem/ur5/3clips": ("routing", {"wire": "fem", "robot": "ur5", "num_clips": 3}),
-    "seating/articulated/wxai/straight": ("seating", {"wire": "articulated", "robot": "wxai"}),
-    "seating/rod/ur5/curved": ("seating", {"wire": "rod", "robot": "ur5", "channel": "curved"}),
-    "seating/fem/panda/curved": ("seating", {"wire": "fem", "robot": "panda", "channel": "curved"}),
-}
+
+def cells(path: Path = GOLDEN_FILE) -> dict[str, tuple[str, dict]]:
+    """name -> (task family, environment keywords) of the golden cells, as the golden file
+    defines them: every family with every wire model, each robot in every family once, and the
+    task options spread over the cells.  Add a cell to the file (its ``task`` and
+    ``env_kwargs``), then ``--write``."""
+    return {name: (c["task"], c["env_kwargs"]) for name, c in load_golden(path)["cells"].items()}
 
 
 def _feed(digest, value) -> None:
@@ -97,13 +85,14 @@ def rollout_fingerprint(task: str, kwargs: dict, seed: int = SEED, steps: int = 
 
 def fingerprints(names=None) -> dict[str, dict]:
     """Today's fingerprints of the named cells (default: all)."""
-    names = list(CELLS) if names is None else list(names)
-    unknown = sorted(set(names) - set(CELLS))
+    defined = cells()
+    names = list(defined) if names is None else list(names)
+    unknown = sorted(set(names) - set(defined))
     if unknown:
-        raise ValueError(f"unknown golden cells {unknown}; valid: {', '.join(CELLS)}")
+        raise ValueError(f"unknown golden cells {unknown}; valid: {', '.join(defined)}")
     out = {}
     for name in names:
-        task, kwargs = CELLS[name]
+        task, kwargs = defined[name]
         out[name] = rollout_fingerprint(task, kwargs)
     return out
 
@@ -144,6 +133,9 @@ def write_golden(today: dict[str, dict], path: Path = GOLDEN_FILE) -> tuple[int,
     """Write ``today`` as the golden file; the benchmark version goes up when a cell changed."""
     path = Path(path)
     old = load_golden(path) if path.exists() else {"benchmark_version": 0, "cells": {}}
+    defined = {
+        name: {"task": c["task"], "env_kwargs": c["env_kwargs"]} for name, c in old["cells"].items()
+    }
     changed = differences(today, old["cells"]) + [
         f"{name}: dropped" for name in sorted(set(old["cells"]) - set(today))
     ]
@@ -153,7 +145,7 @@ def write_golden(today: dict[str, dict], path: Path = GOLDEN_FILE) -> tuple[int,
         "steps": STEPS,
         "seed": SEED,
         "regenerate": "python -m wirecraft.golden --write",
-        "cells": {name: today[name] for name in sorted(today)},
+        "cells": {name: {**defined.get(name, {}), **today[name]} for name in sorted(today)},
     }
     write_text(path, json.dumps(body, indent=1) + "\n")
     return version, changed
@@ -167,7 +159,7 @@ def main(argv=None) -> int:
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--write", action="store_true", help="write today's fingerprints")
     mode.add_argument("--json", action="store_true", help="print today's fingerprints as JSON")
-    parser.add_argument("--cells", nargs="+", metavar="NAME", choices=list(CELLS))
+    parser.add_argument("--cells", nargs="+", metavar="NAME", choices=list(cells()))
     args = parser.parse_args(argv)
     if args.write and args.cells:
         parser.error("--write regenerates every cell; leave out --cells")

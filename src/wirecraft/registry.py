@@ -25,6 +25,10 @@ class Registry[T]:
 
         return decorator
 
+    def unregister(self, name: str) -> T:
+        """Remove ``name`` (tests that register a temporary entry clean up with it)."""
+        return self._items.pop(name)
+
     def get(self, name: str) -> T:
         try:
             return self._items[name]

@@ -132,9 +132,3 @@ def contact_push(data, a: Contacts, b: Contacts | None) -> np.ndarray:
 def touching(model, data, a: Contacts, b: Contacts | None) -> bool:
     del model
     return bool(_between(data, a, b).size)
-
-
-def quat_to_mat(quat: np.ndarray) -> np.ndarray:
-    mat = np.zeros(9)
-    mujoco.mju_quat2Mat(mat, np.asarray(quat, dtype=float))
-    return mat.reshape(3, 3)

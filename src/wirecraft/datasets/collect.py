@@ -50,11 +50,17 @@ POLL_SECONDS = 0.2
 ATTEMPT_TIMEOUT_S = 900.0
 
 
+def _default_family() -> str:
+    from wirecraft.tasks import default_family
+
+    return default_family()
+
+
 @dataclass(frozen=True)
 class CollectSettings:
     """What determines the episodes' content (stored with the dataset, checked on resume)."""
 
-    task: str = "insertion"  # task family
+    task: str = field(default_factory=lambda: _default_family())  # task family
     env_kwargs: dict = field(default_factory=dict)  # environment keywords (image size apart)
     image_size: int = DEFAULT_IMAGE_SIZE
     fps: int = 30
@@ -68,10 +74,7 @@ class CollectSettings:
         from wirecraft.envs.env import steps_per_frame
         from wirecraft.experts import expert_class
 
-        family = next((k for k, v in wirecraft.TASK_IDS.items() if self.task in (k, v)), None)
-        if family is None:
-            valid = ", ".join(wirecraft.TASK_IDS)
-            raise ValueError(f"unknown task {self.task!r}; valid: {valid}")
+        family = wirecraft.family_of(self.task)
         object.__setattr__(self, "task", family)
         expert = expert_class(family)
         kwargs = dict(self.env_kwargs)
@@ -126,14 +129,17 @@ def _with_defaults(family: str, kwargs: dict) -> dict:
     from wirecraft.envs.env import WireCraftEnv
     from wirecraft.tasks import TASKS
 
-    full = {}
-    for func in (WireCraftEnv.__init__, TASKS.get(family).__init__):
-        for name, param in inspect.signature(func).parameters.items():
-            default = param.default
-            if name in ("self", "task", "obs_mode", "image_size", "render_mode"):
-                continue
-            if isinstance(default, (str, int, float)) and not isinstance(default, bool):
-                full[name] = default
+    defaults = {
+        name: param.default
+        for name, param in inspect.signature(WireCraftEnv.__init__).parameters.items()
+        if name not in ("self", "task", "obs_mode", "image_size", "render_mode")
+    }
+    defaults.update(TASKS.get(family).Options.defaults())
+    full = {
+        name: default
+        for name, default in defaults.items()
+        if isinstance(default, (str, int, float)) and not isinstance(default, bool)
+    }
     full.update(kwargs)
     return dict(sorted(full.items()))
 

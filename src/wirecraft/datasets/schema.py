@@ -11,8 +11,8 @@ LeRobot v3 features (``features_for``); every feature is documented in docs/data
 - ``observation.images.cam_side`` / ``observation.images.cam_wrist``: RGB videos (H, W, 3);
 - ``action.env`` (steps_per_frame * env action dim,) float64: the actions passed to
   ``env.step`` during the frame's control steps, in order (exact replay);
-- the task's success flags (bool, one per frame): ``success`` and, for insertion,
-  ``reach_success`` and ``insert_success``;
+- the task's success flags (bool, one per frame): its family's ``metrics.success_flags``
+  (``success`` first; insertion adds ``reach_success`` and ``insert_success``);
 - ``source`` int64: index into ``SOURCES``; ``seed`` int64: the episode's reset seed (-1: none).
 """
 
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wirecraft.assets.robots.kinematics import quat_near
+from wirecraft.geometry import quat_near
 
 SCHEMA_VERSION = 1
 SOURCES = ("scripted", "rl", "teleop", "real")
@@ -32,12 +32,6 @@ ENV_ACTION_KEY = "action.env"
 SOURCE_KEY = "source"
 SEED_KEY = "seed"
 NO_SEED = -1
-# Success flags per task family (the keys of the environment's ``info``).
-TASK_FLAGS = {
-    "insertion": ("success", "reach_success", "insert_success"),
-    "routing": ("success",),
-    "seating": ("success",),
-}
 # Arm part of the environment's action per control mode (None: one per joint); + 1 gripper.
 ARM_ACTION_DIMS = {"joint": None, "cartesian": 6, "cartesian_fixed": 3}
 CARTESIAN_NAMES = ["x", "y", "z", "qw", "qx", "qy", "qz"]
@@ -59,9 +53,10 @@ def source_name(code: int) -> str:
 
 
 def success_flags(task: str) -> tuple[str, ...]:
-    if task not in TASK_FLAGS:
-        raise ValueError(f"unknown task {task!r}; valid: {', '.join(TASK_FLAGS)}")
-    return TASK_FLAGS[task]
+    """The per-frame success flags of a task family (ValueError for an unknown one)."""
+    from wirecraft.tasks import TASKS
+
+    return TASKS.get(task).metrics.success_flags
 
 
 def env_action_dim(robot: str, control: str) -> int:
@@ -78,7 +73,7 @@ def features_for(
     robot: str,
     image_size: int,
     *,
-    task: str = "insertion",
+    task: str,
     control: str = "cartesian",
     steps_per_frame: int = 2,
 ) -> dict[str, dict]:

@@ -36,6 +36,7 @@ from wirecraft.control import CONTROLLERS, ControlConfig, make_controller
 from wirecraft.scene import OFFSCREEN_HEIGHT, OFFSCREEN_WIDTH, add_table, compile_spec, new_spec
 from wirecraft.tasks import TASKS
 from wirecraft.tasks.base import weighted_reward
+from wirecraft.tasks.options import split_options
 
 CONTROL_HZ = 60
 SUBSTEPS = 8
@@ -124,14 +125,9 @@ def _gym_make_max_episode_steps(frame) -> int | None:
 def default_episode_seconds(task: str, **env_kwargs: Any) -> float:
     """The episode length ``WireCraftEnv(task, **env_kwargs)`` gets when ``episode_seconds``
     is not given, without building the environment."""
-    import inspect
-
-    own = set(inspect.signature(WireCraftEnv.__init__).parameters)
-    task_kwargs = {k: v for k, v in env_kwargs.items() if k not in own}
-    try:
-        return TASKS.get(task)(**task_kwargs).episode_seconds
-    except TypeError as err:
-        raise ValueError(f"{task}: invalid keyword argument: {err}") from None
+    task_cls = TASKS.get(task)
+    options, _ = split_options(task_cls.Options, env_kwargs)
+    return task_cls(task_cls.Options.build(options)).episode_seconds
 
 
 def as_actions(name: str, actions, shape: tuple[int, ...]) -> np.ndarray:
@@ -196,7 +192,7 @@ class WireCraftEnv(gym.Env):
 
     def __init__(
         self,
-        task: str = "insertion",
+        task: str,
         robot: str = "ur5",
         wire: str = "articulated",
         control: str | None = None,
@@ -238,10 +234,8 @@ class WireCraftEnv(gym.Env):
             raise ValueError(
                 f"WireCraftEnv.wire_config must be a WireConfig or None, got {wire_config!r}"
             )
-        try:
-            self.task = task_cls(**task_kwargs)
-        except TypeError as err:
-            raise ValueError(f"{task}: invalid keyword argument: {err}") from None
+        weights = task_kwargs.pop("weights", None)
+        self.task = task_cls(task_cls.Options.build(task_kwargs), weights)
         self.robot_name, self.wire_name, self.control_name = robot, wire, control
         self.obs_mode, self.image_size, self.render_mode = obs_mode, image_size, render_mode
         self._episode_seconds = episode_seconds  # as given (None: the task's default)
@@ -266,7 +260,8 @@ class WireCraftEnv(gym.Env):
         self.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         self.data = mujoco.MjData(self.model)
         self.robot.reset_home(self.model, self.data)  # a valid state before the first reset
-        self._speed_limits = _speed_limits(self.model)
+        # (nv,) per-DOF speeds above which a state counts as diverged (``within_limits``).
+        self.speed_limits = _speed_limits(self.model)
         self._wrench_adr = [self.model.sensor(n).adr[0] for n in ("wrist_force", "wrist_torque")]
         self.task.bind(self.model, self.robot)
         self.controller = make_controller(
@@ -274,7 +269,7 @@ class WireCraftEnv(gym.Env):
         )
         self._renderer = None
         self._viewer = None
-        self._steps = 0
+        self.elapsed_steps = 0  # control steps of the current episode (truncated at max_steps)
         self._last_obs = None
         self._needs_reset = True
         self._closed = False
@@ -416,9 +411,9 @@ class WireCraftEnv(gym.Env):
         self.controller.reset_targets(data)
         mujoco.mj_forward(model, data)
         self.task.after_settle(model, data)
-        self._steps = 0
+        self.elapsed_steps = 0
         self._needs_reset = False
-        obs = self._observe()
+        obs = self.observe()
         info = {
             "instruction": self.task.instruction,
             **self.task.evaluate(model, data, self.diagnostics),
@@ -459,12 +454,12 @@ class WireCraftEnv(gym.Env):
         # so observations, rewards and success all describe the same instant.
         if not forwarded:
             mujoco.mj_forward(model, data)
-        self._steps += 1
+        self.elapsed_steps += 1
         if failed or not self._healthy():
             self.set_state(before)
             self._needs_reset = True
-            info = {**self._info_without_reward(), "diverged": True}
-            return self._observe(), 0.0, False, True, info
+            info = {**self.info_without_reward(), "diverged": True}
+            return self.observe(), 0.0, False, True, info
         self.task.after_step(model, data)
         clipped = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
         terms = self.task.reward_terms(model, data, clipped)
@@ -476,9 +471,9 @@ class WireCraftEnv(gym.Env):
             "diverged": False,
             **{f"reward/{k}": float(v) for k, v in weighted.items()},
         }
-        truncated = self._steps >= self.max_steps
+        truncated = self.elapsed_steps >= self.max_steps
         self._needs_reset = truncated
-        obs = self._observe()
+        obs = self.observe()
         if self.render_mode == "human":
             self.render()
         return obs, reward, False, truncated, info
@@ -500,11 +495,12 @@ class WireCraftEnv(gym.Env):
         other._viewer = None
         other._np_random = None
         other._np_random_seed = None
-        other._steps = 0
+        other.elapsed_steps = 0
         other._needs_reset = True
         return other
 
-    def _info_without_reward(self) -> dict:
+    def info_without_reward(self) -> dict:
+        """``info`` of the current state with every reward term 0 (a reset, a diverged step)."""
         return {
             "instruction": self.task.instruction,
             **self.task.evaluate(self.model, self.data, self.diagnostics),
@@ -512,10 +508,11 @@ class WireCraftEnv(gym.Env):
         }
 
     def _healthy(self) -> bool:
-        return bool(within_limits(self.data.qpos, self.data.qvel, self._speed_limits))
+        return bool(within_limits(self.data.qpos, self.data.qvel, self.speed_limits))
 
     # -- observation ------------------------------------------------------------------------
-    def _observe(self):
+    def observe(self):
+        """The observation of the current state (the vector environment reads it per row)."""
         state = self.task.privileged_state(self.model, self.data)
         if self.obs_mode == "state":
             return state
@@ -585,7 +582,7 @@ class WireCraftEnv(gym.Env):
             "physics": physics,
             "controller": controller,
             "task": self.task.get_state(),
-            "steps": self._steps,
+            "steps": self.elapsed_steps,
         }
 
     def set_state(self, state: dict) -> None:
@@ -593,7 +590,7 @@ class WireCraftEnv(gym.Env):
         for key, value in state["controller"].items():
             setattr(self.controller, key, value.copy() if isinstance(value, np.ndarray) else value)
         self.task.set_state(state["task"])
-        self._steps = state["steps"]
+        self.elapsed_steps = state["steps"]
         self._needs_reset = False
         mujoco.mj_forward(self.model, self.data)
 

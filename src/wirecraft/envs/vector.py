@@ -222,7 +222,7 @@ class WireCraftVectorEnv(VectorEnv):
                 raise ValueError(f"set_states: no environment {i} of {self.num_envs}")
             self.envs[i].set_state(state)
             self._needs_reset[i] = False
-            self._write_obs(i, self.envs[i]._observe())
+            self._write_obs(i, self.envs[i].observe())
         if self.batched:
             self._load_rows(ids)
         obs = self._obs_copy()
@@ -294,7 +294,7 @@ class WireCraftVectorEnv(VectorEnv):
             self.controls.load(i, env.controller)
             for name, values in self.trackers.items():
                 values[i] = getattr(env.task, name)
-            self.steps[i] = env._steps
+            self.steps[i] = env.elapsed_steps
         if only_changed:
             differs = np.any(incoming != self.batch.state[ids], axis=1)
             ids, incoming = ids[differs], incoming[differs]
@@ -321,7 +321,7 @@ class WireCraftVectorEnv(VectorEnv):
         except SimulationError as err:
             bad[np.asarray(err.ids, dtype=int)] = True
         self.steps += 1
-        bad |= ~within_limits(frame.qpos, frame.qvel, first._speed_limits)
+        bad |= ~within_limits(frame.qpos, frame.qvel, first.speed_limits)
         diverged = np.flatnonzero(bad)
         if diverged.size:  # roll those back; the others go on untouched
             self.batch.state[diverged] = before[diverged]
@@ -371,8 +371,8 @@ class WireCraftVectorEnv(VectorEnv):
         rewards = np.where(bad, 0.0, rewards)
         for i in diverged:  # as a single environment reports a rolled-back step
             env = self.envs[i]
-            obs[i] = env._observe()
-            for name, value in {**env._info_without_reward(), "diverged": True}.items():
+            obs[i] = env.observe()
+            for name, value in {**env.info_without_reward(), "diverged": True}.items():
                 infos[name][i] = value
         step_keys = list(infos)
         for name in step_keys:
@@ -399,7 +399,7 @@ class WireCraftVectorEnv(VectorEnv):
             data_of(i)
         self.controls.store(i, env.controller)
         env.task.store_trackers(self.trackers, i)
-        env._steps = int(self.steps[i])
+        env.elapsed_steps = int(self.steps[i])
 
     # -- internals --------------------------------------------------------------------------
     def _reset_envs(self, ids, seeds=None) -> dict[int, tuple]:
@@ -447,7 +447,7 @@ class WireCraftVectorEnv(VectorEnv):
                 self.batch.step(live, nstep=SUBSTEPS, stage=VEL)
             except SimulationError as err:
                 failed = np.isin(rows, np.asarray(err.ids, dtype=int))
-            healthy = within_limits(frame.qpos[rows], frame.qvel[rows], first._speed_limits)
+            healthy = within_limits(frame.qpos[rows], frame.qvel[rows], first.speed_limits)
             alive &= healthy & ~failed
             if not alive.any():
                 break

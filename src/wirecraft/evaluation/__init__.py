@@ -10,7 +10,7 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {
-    "TAXONOMY": "diagnostics",
+    "taxonomy": "diagnostics",
     "labels_for": "diagnostics",
     "Policy": "policies",
     "load_policy": "policies",

@@ -203,6 +203,7 @@ def run(args, task_kwargs, write_json) -> int:
     from wirecraft.evaluation.policies import _lerobot_config
     from wirecraft.evaluation.protocol import run_evaluation
     from wirecraft.evaluation.traces import write_traces
+    from wirecraft.tasks import TASKS
 
     family, env_kwargs = task_kwargs(args)
     run_dir = args.policy not in BUILT_IN_POLICIES and sweep_mod.is_imitation_run(args.policy)
@@ -215,8 +216,11 @@ def run(args, task_kwargs, write_json) -> int:
         )
         if args.select == "validation" and args.seed is None:
             raise usage_error("--seed", "--select validation picks on the --seed N list: pass it")
-    if family != "insertion":
-        only_with(args, "--task insertion (retention applies to plugs)", "--retain-force")
+    if not TASKS.get(family).metrics.pulls:
+        pulling = ", ".join(n for n in TASKS if TASKS.get(n).metrics.pulls)
+        only_with(
+            args, f"--task {pulling} (the families whose retention check pulls)", "--retain-force"
+        )
     if not (args.video or args.report):
         only_with(args, "--video or --report", "--video-episodes")
     if args.policy in BUILT_IN_POLICIES:

@@ -1,91 +1,89 @@
 """Per-step traces of an episode and the failure label of a failed one.
 
-Every control step of an evaluated episode is recorded (``TraceRecorder``): what ``info``
-reports (insertion depth, lateral / yaw / roll errors, insertion force, wire tension, minimum
-bend radius...) plus what only the simulation state tells (which part the pads hold, contact
-between the robot and the task's fixture, distance to the goal).  A failed episode then gets
-exactly one label (``label_failure``): the first that applies in the order of ``TAXONOMY``,
-from the earliest failure in the task's story (the simulation broke, the robot hit the
-fixture, nothing was grasped) to the latest (misaligned or jammed at the goal, out of time).
+Every control step of an evaluated episode is recorded (``TraceRecorder``): the columns every
+family shares (which part the pads hold, contact between the robot and the task's fixture,
+forces, wire tension, minimum bend radius, success) and then the family's own
+(``TaskMetrics.columns``, e.g. insertion depth and alignment).  A failed episode then gets
+exactly one label (``label_failure``): the first that applies in the order of
+``taxonomy(task)``, from the earliest failure in the task's story (the simulation broke, the
+robot hit the fixture, nothing was grasped) to the latest (the family's goal labels, dropped,
+out of time).
 
-Thresholds are module constants, documented in docs/evaluation.md.
+Thresholds are module constants (the family's in its metrics module), documented in
+docs/evaluation.md.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from wirecraft.numerics import norm
 from wirecraft.sensors import contact_normal_force
-from wirecraft.tasks.insertion import LATERAL_TOLERANCE, ROLL_GATE
 
 HOLD_STEPS = 3  # consecutive control steps (50 ms) of both pads on a part: a grasp
 COLLISION_FORCE = 5.0  # N, robot against the fixture
-ORIENTATION_TOLERANCE = ROLL_GATE  # rad (10 deg), for roll and axis tilt alike
-JAM_FORCE = 2.0  # N, plug against the port
-JAM_STEPS = 30  # control steps (0.5 s)
-JAM_PROGRESS = 0.0005  # m of depth over those steps
-CLIP_NEAR = 0.03  # m (horizontal), TCP to a clip: "brought to the clip"
-LAID_FRACTION = 0.2  # of the wire inside the channel: "laid"
 
-ALL = ("insertion", "routing", "seating")
-# label -> (families it applies to, what it means), in order of precedence (see diagnose).
-TAXONOMY: dict[str, tuple[tuple[str, ...], str]] = {
-    "diverged": (ALL, "the simulation diverged (the step was rolled back, the episode ended)"),
+# Labels every family shares -> what each means; the family's own labels
+# (``TaskMetrics.failure_labels``) rank between ``LATE_LABELS``'s and these (see diagnose).
+EARLY_LABELS = {
+    "diverged": "the simulation diverged (the step was rolled back, the episode ended)",
     "fixture_collision": (
-        ALL,
         f"the robot pressed on the fixture (port and stand, clip, channel) with >= "
         f"{COLLISION_FORCE:g} N; primary label when it happened before the part reached the "
-        "goal, otherwise after the goal labels",
+        "goal, otherwise after the goal labels"
     ),
     "wrong_part": (
-        ALL,
         "the pads held the other part (the wire instead of the plug; for routing the plug "
-        f"instead of the wire) for >= {HOLD_STEPS} steps, and never the right one",
+        f"instead of the wire) for >= {HOLD_STEPS} steps, and never the right one"
     ),
-    "no_grasp": (ALL, f"the pads never held the part for {HOLD_STEPS} steps in a row"),
-    "yaw_misaligned": (
-        ("insertion",),
-        "at the port (deepest point), the plug's roll about the socket axis or the tilt of its "
-        f"axis was off by more than {math.degrees(ORIENTATION_TOLERANCE):.0f} deg",
-    ),
-    "lateral_misaligned": (
-        ("insertion",),
-        "at the port (deepest point), the tip was off the socket axis by more than the "
-        f"clearance + {1000 * LATERAL_TOLERANCE:g} mm",
-    ),
-    "jammed": (
-        ("insertion",),
-        f"at the port and aligned, but stalled: insertion force >= {JAM_FORCE:g} N for "
-        f"{JAM_STEPS} steps while the depth moved less than {1000 * JAM_PROGRESS:g} mm",
-    ),
-    "clip_missed": (
-        ("routing",),
-        f"the held wire was brought within {100 * CLIP_NEAR:g} cm of a clip, which is not "
-        "routed at the end",
-    ),
-    "not_seated": (
-        ("seating",),
-        f"the wire was laid (>= {100 * LAID_FRACTION:g}% inside the channel at some step) but "
-        "is < 80% inside at the end",
-    ),
+    "no_grasp": f"the pads never held the part for {HOLD_STEPS} steps in a row",
+}
+LATE_LABELS = {
     "dropped": (
-        ALL,
-        "the part was held, then let go before it reached the goal, and was not held at the end",
+        "the part was held, then let go before it reached the goal, and was not held at the end"
     ),
-    "timeout": (ALL, "none of the above: the part was still held, short of the goal"),
+    "timeout": "none of the above: the part was still held, short of the goal",
 }
 
 
+def _metrics(task: str):
+    from wirecraft.tasks import TASKS
+
+    return TASKS.get(task).metrics
+
+
+def taxonomy(task: str) -> dict[str, str]:
+    """Failure label -> meaning for one family, in order of precedence."""
+    return {**EARLY_LABELS, **_metrics(task).failure_labels, **LATE_LABELS}
+
+
 def labels_for(task: str) -> list[str]:
-    return [label for label, (families, _) in TAXONOMY.items() if task in families]
+    return list(taxonomy(task))
+
+
+def all_labels() -> dict[str, tuple[tuple[str, ...], str]]:
+    """Every family's labels: label -> (families it applies to, meaning), shared labels first
+    and last, family labels in registry order between."""
+    from wirecraft.tasks import TASKS
+
+    families = tuple(TASKS)
+    out: dict[str, tuple[tuple[str, ...], str]] = {
+        k: (families, v) for k, v in EARLY_LABELS.items()
+    }
+    for family in families:
+        for label, text in _metrics(family).failure_labels.items():
+            owners = out.get(label, ((), text))[0]
+            out[label] = ((*owners, family), text)
+    out.update({k: (families, v) for k, v in LATE_LABELS.items()})
+    return out
 
 
 # -- recording -----------------------------------------------------------------------------------
-# Columns of every trace (float unless noted), in recording order.
+# Columns of every trace (float unless noted), in recording order; the family's
+# (``TaskMetrics.columns``) follow.
 COMMON_COLUMNS = (
     "held",  # 0/1: both pads on the task's part (plug; wire for routing)
     "wrong_held",  # 0/1: both pads on the other part
@@ -99,26 +97,10 @@ COMMON_COLUMNS = (
     "gripper_opening",  # m
     "success",  # 0/1
 )
-FAMILY_COLUMNS = {
-    "insertion": (
-        "insertion_depth",  # m past the socket mouth
-        "lateral_error",  # m off the socket axis
-        "yaw_error",  # rad, plug axis vs socket axis
-        "roll_error",  # rad about the axis, modulo symmetry
-        "insertion_force",  # N, plug against the port
-        "tip_distance",  # m, plug tip to the socket entry
-        "reach",  # 0/1: info["reach_success"]
-    ),
-    "routing": (
-        "clips_routed",  # count
-        "clip_distance",  # m (horizontal), TCP to the nearest clip not routed (nan: none left)
-    ),
-    "seating": ("fraction_inside",),
-}
 
 
 def columns(task: str) -> tuple[str, ...]:
-    return COMMON_COLUMNS + FAMILY_COLUMNS[task]
+    return COMMON_COLUMNS + _metrics(task).columns
 
 
 def _other_part(task):
@@ -146,41 +128,18 @@ def measure(env, info: dict) -> dict[str, float]:
         "gripper_opening": env.robot.gripper_opening(model, data),
         "success": float(info["success"]),
     }
-    name = task.name
-    if name == "insertion":
-        tip = data.site_xpos[task.assembly.tip_site]
-        row.update(
-            insertion_depth=float(info["insertion_depth"]),
-            lateral_error=float(info["lateral_error"]),
-            yaw_error=float(info["yaw_error"]),
-            roll_error=float(info["roll_error"]),
-            insertion_force=float(info["insertion_force"]),
-            tip_distance=norm(tip - data.site_xpos[task.entry_site]),
-            reach=float(info["reach_success"]),
-        )
-    elif name == "routing":
-        routed = task.routed(model, data)
-        tcp = data.site_xpos[task.tcp_site]
-        pending = [
-            norm((np.asarray(clip.pos) - tcp)[:2])
-            for clip, done in zip(task.placed_clips(data), routed, strict=True)
-            if not done
-        ]
-        row.update(clips_routed=float(sum(routed)), clip_distance=min(pending, default=math.nan))
-    elif name == "seating":
-        row.update(fraction_inside=float(info["fraction_inside"]))
+    row.update(task.metrics.measure(env, info))
     return row
 
 
 def info_only(task_name: str, info: dict) -> dict[str, float]:
     """A row from ``info`` alone (the step that diverged: its state was rolled back and the
     environment reset, so only the reported values remain); the rest is NaN."""
-    row = {c: math.nan for c in columns(task_name)}
+    row = {c: math.nan for c in COMMON_COLUMNS}
     for key in row:
         if key in info:
             row[key] = float(info[key])
-    if task_name == "insertion" and "reach_success" in info:
-        row["reach"] = float(info["reach_success"])
+    row.update(_metrics(task_name).from_info(info))
     return row
 
 
@@ -229,64 +188,21 @@ def _gripped(flags: np.ndarray) -> np.ndarray:
     return out
 
 
-def stalled_under_force(depth: np.ndarray, force: np.ndarray, window: np.ndarray) -> bool:
-    """``JAM_STEPS`` consecutive steps inside ``window`` with the force >= ``JAM_FORCE`` and
-    the depth moving less than ``JAM_PROGRESS``."""
-    pressed = window & (np.nan_to_num(force) >= JAM_FORCE)
-    start = None
-    for k, flag in enumerate([*pressed, False]):
-        if flag and start is None:
-            start = k
-        elif not flag and start is not None:
-            for a in range(start, k - JAM_STEPS + 1):
-                segment = depth[a : a + JAM_STEPS]
-                if np.nanmax(segment) - np.nanmin(segment) < JAM_PROGRESS:
-                    return True
-            start = None
-    return False
-
-
 @dataclass(frozen=True)
 class LabelContext:
     task: str
     diverged: bool
-    clearance: float = 0.0  # m (insertion)
+    options: Any = None  # the task's options (None: its defaults)
+
+    def task_options(self):
+        from wirecraft.tasks import TASKS
+
+        return self.options if self.options is not None else TASKS.get(self.task).Options()
 
 
 def _first(flags: np.ndarray) -> int | None:
     hits = np.flatnonzero(flags)
     return int(hits[0]) if hits.size else None
-
-
-def _at_goal(trace: dict[str, np.ndarray], held: np.ndarray, task: str) -> np.ndarray:
-    """(T,) steps at which the part was at the task's goal: the plug within reach of the
-    socket (insertion), the held wire at a clip (routing), the wire laid (seating)."""
-    if task == "insertion":
-        return np.nan_to_num(trace["reach"]) > 0.5
-    if task == "routing":
-        return held & (np.nan_to_num(trace["clip_distance"], nan=np.inf) <= CLIP_NEAR)
-    if task == "seating":
-        return np.nan_to_num(trace["fraction_inside"]) >= LAID_FRACTION
-    raise ValueError(f"no failure taxonomy for task {task!r}")
-
-
-def _at_goal_labels(trace, at_goal, context: LabelContext) -> list[str]:
-    """Labels explaining why a part that reached the goal did not succeed."""
-    if context.task == "routing":
-        return ["clip_missed"]
-    if context.task == "seating":
-        return ["not_seated"]
-    depth = trace["insertion_depth"]
-    # The decisive moment: the deepest the plug got while at the port.
-    k = int(np.nanargmax(np.where(at_goal, depth, -np.inf)))
-    labels = []
-    if max(trace["roll_error"][k], trace["yaw_error"][k]) > ORIENTATION_TOLERANCE:
-        labels.append("yaw_misaligned")
-    if trace["lateral_error"][k] > context.clearance + LATERAL_TOLERANCE:
-        labels.append("lateral_misaligned")
-    if stalled_under_force(depth, trace["insertion_force"], at_goal):
-        labels.append("jammed")
-    return labels
 
 
 def diagnose(trace: dict[str, np.ndarray], context: LabelContext) -> tuple[str, list[str]]:
@@ -307,10 +223,11 @@ def diagnose(trace: dict[str, np.ndarray], context: LabelContext) -> tuple[str, 
     grasped = bool(held.any())
     if not grasped:
         events.append("wrong_part" if _gripped(trace["wrong_held"]).any() else "no_grasp")
-    at_goal = _at_goal(trace, held, context.task)
+    metrics = _metrics(context.task)
+    at_goal = metrics.at_goal(trace, held)
     reached = _first(at_goal)
     if grasped and reached is not None:
-        events += _at_goal_labels(trace, at_goal, context)
+        events += metrics.at_goal_labels(trace, at_goal, context.task_options())
     held_at_end = grasped and bool(held[-1])
     if grasped and reached is None and not held_at_end:
         events.append("dropped")
@@ -318,7 +235,8 @@ def diagnose(trace: dict[str, np.ndarray], context: LabelContext) -> tuple[str, 
         return "diverged", events
     if collision is not None and (reached is None or collision < reached):
         return "fixture_collision", events
-    order = [label for label in TAXONOMY if label not in ("diverged", "fixture_collision")]
+    order = [label for label in taxonomy(context.task) if label not in EARLY_LABELS]
+    order = ["wrong_part", "no_grasp", *order]
     order.insert(order.index("dropped"), "fixture_collision")
     for label in order:
         if label in events:

@@ -41,14 +41,21 @@ from wirecraft.evaluation.seeds import (
     variant_key,
 )
 from wirecraft.provenance import provenance
+from wirecraft.tasks import TASKS
+from wirecraft.tasks.options import split_options
 from wirecraft.torch_threads import DEFAULT_TORCH_THREADS, check_torch_threads
 from wirecraft.torch_threads import torch_threads as limit_torch_threads
 
-METRICS = {
-    "insertion": ("success", "reach_success", "insert_success", "retain_success", "success_at_end"),
-    "routing": ("success", "retain_success", "success_at_end"),
-    "seating": ("success", "retain_success", "success_at_end"),
-}
+# Episode flags every family's summary adds to its success flags.
+EPISODE_FLAGS = ("retain_success", "success_at_end")
+
+
+def summary_metrics(task: str) -> tuple[str, ...]:
+    """The rates a run reports for ``task``: the family's success flags, retention, success at
+    the end."""
+    return TASKS.get(task).metrics.success_flags + EPISODE_FLAGS
+
+
 DEFAULT_BATCH = 8
 
 
@@ -108,7 +115,7 @@ class EvaluationRun:
 _CACHE: dict[str, tuple[Any, Any]] = {}
 
 
-def _build(config: EvalConfig):
+def environment_and_policy(config: EvalConfig):
     """The vector environment and policy of ``config``, built once per process."""
     key = config.key()
     if key not in _CACHE:
@@ -148,7 +155,7 @@ def run_chunk(config: EvalConfig, specs: list[EpisodeSpec], progress=None) -> li
     of its first episode, whose results are dropped)."""
     if not 1 <= len(specs) <= config.batch:
         raise ValueError(f"a chunk holds 1 to {config.batch} episodes, got {len(specs)}")
-    venv, policy = _build(config)
+    venv, policy = environment_and_policy(config)
     with limit_torch_threads(config.torch_threads):
         return _run_chunk(config, specs, venv, policy, progress)
 
@@ -245,10 +252,10 @@ def _summarize(config, trace, steps, diverged, checked, retain_failure) -> dict[
         "steps": steps,
         "diverged": diverged,
     }
-    if config.task == "insertion":
-        reach = ep["reach"] > 0.5
-        summary["reach_success"] = bool(reach.any())
-        summary["insert_success"] = summary["success"]
+    metrics = TASKS.get(config.task).metrics
+    with np.errstate(all="ignore"):
+        family = metrics.summarize(ep, steps)
+    summary.update({k: v for k, v in family.items() if k in metrics.success_flags})
     summary["retain_success"] = bool(checked and retain_failure is None)
     if checked:
         summary["retain_failure"] = retain_failure
@@ -256,8 +263,9 @@ def _summarize(config, trace, steps, diverged, checked, retain_failure) -> dict[
         summary["retain_failure"] = "lost_before_end"
     else:
         summary["retain_failure"] = None
+    options, _ = split_options(TASKS.get(config.task).Options, dict(config.env_kwargs))
     context = diagnostics.LabelContext(
-        config.task, diverged, float(config.env_kwargs.get("clearance", 0.003))
+        config.task, diverged, TASKS.get(config.task).Options.build(options)
     )
     primary, events = diagnostics.diagnose(ep, context)
     summary["failure"] = None if summary["success"] else primary
@@ -276,19 +284,7 @@ def _summarize(config, trace, steps, diverged, checked, retain_failure) -> dict[
             "min_bend_radius": np.nanmin(ep["min_bend_radius"], initial=np.inf),
             "max_contact_force": np.nanmax(ep["peak_contact_force"], initial=0.0),
         }
-        if config.task == "insertion":
-            stats.update(
-                max_insertion_depth=np.nanmax(ep["insertion_depth"], initial=-np.inf),
-                final_insertion_depth=ep["insertion_depth"][-1] if steps else np.nan,
-                final_lateral_error=ep["lateral_error"][-1] if steps else np.nan,
-                final_yaw_error=ep["yaw_error"][-1] if steps else np.nan,
-                final_roll_error=ep["roll_error"][-1] if steps else np.nan,
-                max_insertion_force=np.nanmax(ep["insertion_force"], initial=0.0),
-            )
-        elif config.task == "routing":
-            stats["final_clips_routed"] = ep["clips_routed"][-1] if steps else np.nan
-        else:
-            stats["final_fraction_inside"] = ep["fraction_inside"][-1] if steps else np.nan
+        stats.update({k: v for k, v in family.items() if k not in metrics.success_flags})
     summary.update(stats)
     phases = [p for p in ep["phase"] if p]
     summary["final_phase"] = phases[-1] if phases else None
@@ -371,7 +367,7 @@ def aggregate(task: str, episodes: list[dict], num_seeds: int) -> dict[str, dict
     """metric -> {"mean", "std", "per_seed"}: the rate per seed, then mean and population
     std over seeds."""
     metrics = {}
-    for name in METRICS[task]:
+    for name in summary_metrics(task):
         per_seed = []
         for s in range(num_seeds):
             values = [bool(ep[name]) for ep in episodes if ep["seed"] == s]
@@ -424,9 +420,7 @@ def run_evaluation(
     reports (default: derived from the policy, ``policy_label``)."""
     import wirecraft
 
-    family = next((k for k, v in wirecraft.TASK_IDS.items() if task in (k, v)), None)
-    if family is None:
-        raise ValueError(f"unknown task {task!r}; valid: {', '.join(wirecraft.TASK_IDS)}")
+    family = wirecraft.family_of(task)
     for name, value in (("seeds", seeds), ("episodes", episodes), ("workers", workers)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")

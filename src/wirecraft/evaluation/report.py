@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from wirecraft.evaluation import diagnostics
+from wirecraft.tasks import TASKS
 
 METRIC_TITLES = {
     "success": "success",
@@ -32,26 +33,6 @@ METRIC_TITLES = {
     "insert_success": "SR insert",
     "retain_success": "retained",
     "success_at_end": "success at end",
-}
-TRACE_PLOTS = {
-    "insertion": (
-        ("insertion_depth", "insertion depth (mm)", 1000.0, (-40.0, 25.0)),
-        ("insertion_force", "insertion force (N)", 1.0, None),
-        ("lateral_error", "lateral error (mm)", 1000.0, (0.0, 30.0)),
-        ("wire_tension", "wire tension (N)", 1.0, None),
-    ),
-    "routing": (
-        ("clips_routed", "clips routed", 1.0, None),
-        ("fixture_force", "wire-clip force (N)", 1.0, None),
-        ("wire_tension", "wire tension (N)", 1.0, None),
-        ("min_bend_radius", "min bend radius (mm)", 1000.0, (0.0, 200.0)),
-    ),
-    "seating": (
-        ("fraction_inside", "fraction inside", 1.0, (0.0, 1.0)),
-        ("fixture_force", "wire-channel force (N)", 1.0, None),
-        ("wire_tension", "wire tension (N)", 1.0, None),
-        ("min_bend_radius", "min bend radius (mm)", 1000.0, (0.0, 200.0)),
-    ),
 }
 
 
@@ -64,8 +45,13 @@ def run_slug(payload: dict) -> str:
     )
     digest = hashlib.sha1(identity.encode()).hexdigest()[:8]
     policy = policy_title(payload).replace("/", "-") or "policy"
-    variant = [part.split("=", 1)[-1] for part in payload["variant"].split("/")[1:]]
-    variant = [v for v in variant if v not in ("None", "ethernet")] or ["default"]
+    # The variant's option values, those at their defaults left out.
+    defaults = TASKS.get(payload["task"]).Options.defaults()
+    variant = [part.split("=", 1) for part in payload["variant"].split("/")[1:]]
+    variant = [
+        v for k, v in variant if v not in ("None", repr(defaults.get(k)), str(defaults.get(k)))
+    ]
+    variant = variant or ["default"]
     parts = [
         payload["task"],
         "-".join(variant),
@@ -188,7 +174,8 @@ def plot_success(runs: list[tuple[str, dict]], path: Path) -> Path:
 def plot_failures(runs: list[tuple[str, dict]], path: Path) -> Path:
     """Stacked horizontal bars: failure labels per run."""
     plt = _pyplot()
-    labels = [lab for lab in diagnostics.TAXONOMY if any(lab in p["failures"] for _, p in runs)]
+    taxonomy = list(diagnostics.all_labels())
+    labels = [lab for lab in taxonomy if any(lab in p["failures"] for _, p in runs)]
     fig, ax = plt.subplots(figsize=(7.5, 0.6 + 0.5 * max(2, len(runs))))
     cmap = plt.get_cmap("tab20")
     run_names = run_labels(runs)
@@ -196,7 +183,7 @@ def plot_failures(runs: list[tuple[str, dict]], path: Path) -> Path:
     left = np.zeros(len(runs))
     for label in labels:
         counts = np.array([p["failures"].get(label, 0) for _, p in runs], float)
-        colour = cmap(list(diagnostics.TAXONOMY).index(label) % 20)
+        colour = cmap(taxonomy.index(label) % 20)
         ax.barh(range(len(runs)), counts, left=left, color=colour, label=label)
         left += counts
     ax.set_yticks(range(len(runs)), names, fontsize=7)
@@ -245,7 +232,7 @@ def plot_traces(task: str, table, path: Path, title: str) -> Path:
     """Per-step traces of every episode (green: retained, orange: succeeded but not
     retained, red: failed); the retention steps after the dashed line."""
     plt = _pyplot()
-    panels = TRACE_PLOTS[task]
+    panels = TASKS.get(task).metrics.trace_plots
     columns = table.to_pydict()
     seeds = np.asarray(columns["seed"])
     episodes = np.asarray(columns["episode"])
@@ -253,10 +240,17 @@ def plot_traces(task: str, table, path: Path, title: str) -> Path:
     stages = np.asarray(columns["stage"])
     success = np.asarray(columns["success"], float)
     outcome_colour = {"retained": "tab:green", "success": "tab:orange", "failed": "tab:red"}
-    fig, axes = plt.subplots(2, 2, figsize=(9.5, 5.6), sharex=True)
+    cols = 2 if len(panels) > 1 else 1
+    rows_of_panels = -(-len(panels) // cols)
+    fig, axes = plt.subplots(
+        rows_of_panels, cols, figsize=(4.75 * cols, 2.8 * rows_of_panels), sharex=True,
+        squeeze=False,
+    )  # fmt: skip
+    for ax in axes.ravel()[len(panels) :]:
+        ax.set_visible(False)
     keys = sorted(set(zip(seeds.tolist(), episodes.tolist(), strict=True)))
     horizon = times[stages == "episode"].max(initial=0.0)
-    for ax, (column, label, scale, limits) in zip(axes.ravel(), panels, strict=True):
+    for ax, (column, label, scale, limits) in zip(axes.ravel(), panels, strict=False):
         values = np.asarray(columns[column], float) * scale
         for seed, episode in keys:
             rows = (seeds == seed) & (episodes == episode)
@@ -335,11 +329,7 @@ def _summary_table(runs) -> str:
 
 def _episodes_table(payload: dict) -> str:
     task = payload["task"]
-    extra = {
-        "insertion": ("reach_success", "max_insertion_depth", "max_insertion_force"),
-        "routing": ("final_clips_routed",),
-        "seating": ("final_fraction_inside",),
-    }[task]
+    extra = TASKS.get(task).metrics.episode_columns
     cols = (
         "seed",
         "episode",
@@ -372,7 +362,7 @@ def _taxonomy_table() -> str:
     rows = "".join(
         f"<tr><td><code>{label}</code></td><td>{', '.join(families)}</td>"
         f"<td>{html.escape(text)}</td></tr>"
-        for label, (families, text) in diagnostics.TAXONOMY.items()
+        for label, (families, text) in diagnostics.all_labels().items()
     )
     return f"<table><tr><th>label</th><th>tasks</th><th>meaning</th></tr>{rows}</table>"
 

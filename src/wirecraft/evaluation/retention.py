@@ -6,10 +6,10 @@ After an episode whose task succeeded at its last step, the evaluation takes the
 1. release (``RELEASE_STEPS``, 0.25 s): arm held, gripper commanded fully open;
 2. retreat (``RETREAT_STEPS``, 1/3 s): under Cartesian control the TCP moves straight up at
    3 mm per step (6 cm), so the pads leave the part; under joint control the arm holds still;
-3. pull (``PULL_STEPS``, 0.5 s): insertion only, a force of ``force`` newtons on the plug body
-   along the socket axis, out of the socket (world -y for our port), ramped up linearly over
-   ``RAMP_STEPS`` (0.1 s) so that the check measures holding, not an impact.  Routing and
-   seating only wait (no pull).
+3. pull (``PULL_STEPS``, 0.5 s): where the family defines one
+   (``TaskMetrics.retention_pull``; insertion: the plug body, out of the socket along its
+   axis), a force of ``force`` newtons ramped up linearly over ``RAMP_STEPS`` (0.1 s) so that
+   the check measures holding, not an impact.  The other families only wait (no pull).
 
 ``retain_success``: the task's success (``success`` of its ``evaluate``) holds at the end of
 the retreat and at every step after it.  A failed check says why: ``unseated_on_release``
@@ -56,24 +56,25 @@ def retention_action(env, k: int) -> np.ndarray:
 
 
 def pull_force(env, k: int, force: float) -> np.ndarray:
-    """(3,) world force on the plug at retention step ``k``: zero before the pull, then along
-    the socket axis out of the socket, ramped to ``force``."""
-    task = env.task
-    if task.name != "insertion" or k < RELEASE_STEPS + RETREAT_STEPS:
+    """(3,) world force on the pulled body at retention step ``k``: zero before the pull (and
+    for a family without one), then along the family's pull direction, ramped to ``force``."""
+    pull = env.task.metrics.retention_pull(env.task, env.data)
+    if pull is None or k < RELEASE_STEPS + RETREAT_STEPS:
         return np.zeros(3)
     ramp = min(1.0, (k - RELEASE_STEPS - RETREAT_STEPS + 1) / RAMP_STEPS)
-    axis = env.data.xmat[task.port_id].reshape(3, 3)[:, 0]  # into the socket
-    return -ramp * float(force) * axis
+    return ramp * float(force) * pull[1]
 
 
 def apply_pull(env, k: int, force: float) -> None:
-    if env.task.name == "insertion":
-        env.data.xfrc_applied[env.task.assembly.plug_id, :3] = pull_force(env, k, force)
+    pull = env.task.metrics.retention_pull(env.task, env.data)
+    if pull is not None:
+        env.data.xfrc_applied[pull[0], :3] = pull_force(env, k, force)
 
 
 def clear_pull(env) -> None:
-    if env.task.name == "insertion":
-        env.data.xfrc_applied[env.task.assembly.plug_id] = 0.0
+    pull = env.task.metrics.retention_pull(env.task, env.data)
+    if pull is not None:
+        env.data.xfrc_applied[pull[0]] = 0.0
 
 
 def failure_at(k: int, success: bool) -> str | None:

@@ -23,7 +23,6 @@ puts N in front of (s, e): a fresh list that the public one never overlaps by co
 
 from __future__ import annotations
 
-import inspect
 import json
 import re
 import zlib
@@ -42,20 +41,16 @@ PUBLIC, HELD_OUT = 0, 1
 
 
 def variant_key(task: str, env_kwargs: dict | None = None) -> str:
-    """``family/key=value/...`` from the task-class keyword arguments in ``env_kwargs``
-    (defaults filled in; environment-level keywords such as robot or wire ignored)."""
+    """``family/key=value/...`` from the task options in ``env_kwargs`` (defaults filled in;
+    environment-level keywords such as robot or wire ignored)."""
     from wirecraft.tasks import TASKS
 
-    cls = TASKS.get(task)
+    defaults = TASKS.get(task).Options.defaults()
     env_kwargs = env_kwargs or {}
     parts = [task]
-    params = inspect.signature(cls.__init__).parameters
-    for name in sorted(params):
-        param = params[name]
-        if name in ("self", "weights") or param.kind in (param.VAR_KEYWORD, param.VAR_POSITIONAL):
-            continue
-        value = env_kwargs.get(name, param.default)
-        if isinstance(param.default, float) and isinstance(value, int):
+    for name in sorted(defaults):
+        value = env_kwargs.get(name, defaults[name])
+        if isinstance(defaults[name], float) and isinstance(value, int):
             value = float(value)
         parts.append(f"{name}={value!r}" if isinstance(value, float) else f"{name}={value}")
     return "/".join(parts)
@@ -108,15 +103,11 @@ def episode_seeds(
 
 
 def standard_variants() -> list[tuple[str, dict]]:
-    """The variants whose lists are frozen in ``seeds/<version>.json``."""
-    from wirecraft.assets.connectors import CONNECTORS
+    """The variants whose lists are frozen in ``seeds/<version>.json``: each family's
+    ``metrics.standard_variants()``."""
+    from wirecraft.tasks import TASKS
 
-    variants: list[tuple[str, dict]] = [
-        ("insertion", {"connector": name, "clearance": 0.003}) for name in CONNECTORS.names()
-    ]
-    variants += [("routing", {"num_clips": n}) for n in (1, 2, 3)]
-    variants += [("seating", {"channel": c}) for c in ("straight", "curved")]
-    return variants
+    return [(name, dict(v)) for name in TASKS for v in TASKS.get(name).metrics.standard_variants()]
 
 
 def write_frozen_lists(path: Path | None = None) -> Path:

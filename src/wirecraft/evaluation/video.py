@@ -48,10 +48,10 @@ def record_episode(config, spec, summary: dict, path: str | Path) -> dict:
     last frame is also saved as a PNG beside the video (its poster)."""
     from dataclasses import replace
 
-    from wirecraft.evaluation.protocol import _build
+    from wirecraft.evaluation.protocol import environment_and_policy
 
     single = replace(config, batch=1, threads=1)
-    venv, policy = _build(single)
+    venv, policy = environment_and_policy(single)
     with limit_torch_threads(config.torch_threads):
         return _record(config, spec, summary, path, venv, policy)
 
@@ -114,7 +114,7 @@ def _record(config, spec, summary: dict, path, venv, policy) -> dict:
                 failure = failure or retention.failure_at(k, bool(_info_at(infos, 0)["success"]))
                 if k % FRAME_EVERY == 0:
                     stage = retention.stage(k)
-                    if stage.endswith("pull") and config.task == "insertion":
+                    if stage.endswith("pull") and env.task.metrics.pulls:
                         stage += f" {config.retain_force:g} N"
                     writer.add(frame(config.horizon + k + 1, stage))
             retention.clear_pull(env)

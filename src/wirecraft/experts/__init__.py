@@ -1,16 +1,10 @@
 """Scripted experts: a vectorized finite-state-machine framework and one expert per task."""
 
-from wirecraft.experts.base import ScriptedExpert
+from wirecraft.experts.base import EXPERTS, ScriptedExpert
 from wirecraft.experts.fsm import Phase, VectorFSM
 from wirecraft.experts.insertion import InsertionExpert, InsertionExpertConfig
 from wirecraft.experts.routing import RoutingExpert, RoutingExpertConfig
 from wirecraft.experts.seating import SeatingExpert, SeatingExpertConfig
-
-EXPERTS: dict[str, type[ScriptedExpert]] = {
-    "insertion": InsertionExpert,
-    "routing": RoutingExpert,
-    "seating": SeatingExpert,
-}
 
 
 def expert_class(task: str) -> type[ScriptedExpert]:
@@ -18,7 +12,7 @@ def expert_class(task: str) -> type[ScriptedExpert]:
     ``control=expert_class(task).CONTROL``."""
     if task not in EXPERTS:
         raise ValueError(f"no scripted expert for task {task!r}; valid: {', '.join(EXPERTS)}")
-    return EXPERTS[task]
+    return EXPERTS.get(task)
 
 
 __all__ = [

@@ -28,10 +28,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from wirecraft.assets.robots.kinematics import rotation_error
 from wirecraft.control import servo_action
 from wirecraft.experts.fsm import Phase, VectorFSM, step_toward, unwrap_envs
+from wirecraft.geometry import rotation_error
 from wirecraft.numerics import dot, matmul, norm
+from wirecraft.registry import Registry
 
 UP = np.array([0.0, 0.0, 1.0])  # world
 TABLE_Z = 0.0  # m, table top (world; wirecraft.scene puts it at z = 0)
@@ -109,6 +110,10 @@ def robot_fields(env) -> dict:
 def read_robot(env) -> RobotView:
     """``RobotView`` of environment ``env`` (a ``WireCraftEnv``) now."""
     return RobotView(**robot_fields(env))
+
+
+# Task family -> its scripted expert class; each expert registers itself beside its class.
+EXPERTS: Registry[type[ScriptedExpert]] = Registry("scripted expert")
 
 
 class ScriptedExpert:

@@ -49,8 +49,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from wirecraft.assets.robots.kinematics import axis_angle_to_mat, rotation_error
 from wirecraft.experts.base import (
+    EXPERTS,
     TABLE_Z,
     RobotView,
     ScriptedExpert,
@@ -58,6 +58,7 @@ from wirecraft.experts.base import (
     rotation_angle,
 )
 from wirecraft.experts.fsm import Phase
+from wirecraft.geometry import axis_angle_to_mat, rotation_error
 from wirecraft.numerics import dot, matmul, norm
 
 
@@ -323,6 +324,7 @@ def gripper_for_gap(gap: float, max_opening: float) -> float:
     return 1.0 - 2.0 * min(gap, max_opening) / max_opening
 
 
+@EXPERTS.register("insertion")
 class InsertionExpert(ScriptedExpert):
     """Vectorized scripted expert for the insertion task (N environments, N = 1 for one env).
 

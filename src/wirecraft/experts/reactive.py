@@ -32,10 +32,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from wirecraft.assets.robots.kinematics import quat_to_mat, rotation_error
 from wirecraft.experts.fsm import unwrap_envs
 from wirecraft.experts.insertion import grasp_pose, gripper_for_gap, plug_goal_rot
+from wirecraft.geometry import quat_to_mat, rotation_error
 from wirecraft.numerics import dot, matmul, norm
+from wirecraft.registry import Registry
 
 PHASES = (
     "approach",
@@ -72,6 +73,11 @@ class StateLayout:
         self.size = start + 28
 
 
+# Task family -> its memoryless expert (a function of the state: DAgger's labeller).
+REACTIVE_EXPERTS: Registry[type] = Registry("reactive expert")
+
+
+@REACTIVE_EXPERTS.register("insertion")
 class ReactiveInsertionExpert:
     """``ReactiveInsertionExpert(env_or_envs, gain=None)``; ``act(states)`` maps (N,
     state_dim) insertion states to (N, 7) ``cartesian`` actions (module docstring).  ``gain``
@@ -104,6 +110,7 @@ class ReactiveInsertionExpert:
     insert_speed = 0.0015
     retreat_speed = 0.004
     settle_rate = 0.005  # m/s of pad gap change under which closed pads count as settled
+    CONTROL = "cartesian"
 
     def __init__(self, env_or_envs, gain: float | None = None) -> None:
         if gain is not None:

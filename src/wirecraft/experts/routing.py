@@ -75,11 +75,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from wirecraft import validation
-from wirecraft.experts.base import ScriptedExpert, flat, horizontal, rotation_angle
+from wirecraft.experts.base import EXPERTS, ScriptedExpert, flat, horizontal, rotation_angle
 from wirecraft.experts.fsm import Phase
+from wirecraft.geometry import arc_lengths, resample
 from wirecraft.numerics import arctan2, dot, matmul, norm
-from wirecraft.tasks.assembly import arc_lengths, resample
-from wirecraft.tasks.routing import MAX_CLIPS
+from wirecraft.tasks.routing.options import MAX_CLIPS
 
 
 @dataclass(frozen=True)
@@ -199,6 +199,7 @@ PHASES = (
 )
 
 
+@EXPERTS.register("routing")
 class RoutingExpert(ScriptedExpert):
     """Vectorized scripted expert for the routing task (N environments, N = 1 for one env).
 

@@ -56,7 +56,7 @@ face) slides along the channel's centre line from ``press_from`` past the entry 
 ``press_turn_rate`` per step.  Where the turned footprint fits between the walls it goes down
 to the top of a seated wire (``press_squeeze``; no lower: a pad below it wedged a capsule
 against the floor, and the wire shot out; the soft FEM wire, which the pad squashes, is
-pushed ``press_squeeze_fem`` below it) and pushes the wire onto the floor; elsewhere (and
+pushed 0.5 mm below it: ``WIRE_SETTINGS``) and pushes the wire onto the floor; elsewhere (and
 ``press_window`` of arc around) it passes ``press_clearance`` above the wall tops.  The
 profile (heights and yaws) is computed once per episode from the channel geometry and the
 pad's box in the model (``_press_profile``).  Held at the start orientation (the
@@ -90,10 +90,9 @@ pads' bottoms): moving the pads then dragged it along and folded the wire into a
 The TCP keeps its orientation (turning at the controller's 0.01 rad per step cost ~30 steps
 more) and does not press the wire down there (~30 steps more; the pass does it): ~40 steps
 in all.  A first version that did both cost ~150 steps and ran seeds that had succeeded out
-of time.  Only the wire models in ``tuck_wires`` get a tuck (by default the articulated wire,
-which it was built for, and the FEM wire; the rod did no better with it).  The FEM wire's
-tuck waits for a wire farther out (``tuck_outside_fem``): nearer, the pass draws the FEM wire
-in by itself, and a tuck there did harm.  Measured in docs/experts.md ("The tuck", "The FEM
+of time.  The rod gets no tuck (it did no better with it), and the FEM wire's tuck waits for
+a wire farther out: nearer, the pass draws the FEM wire in by itself, and a tuck there did
+harm (``WIRE_SETTINGS``, the per-wire settings).  Measured in docs/experts.md ("The tuck", "The FEM
 wire's tuck").
 
 Pads off the walls and the table (why: the gripper's fingers close with a limited force, and
@@ -115,19 +114,39 @@ per-episode slow-down factor) are drawn per episode.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from wirecraft import validation
-from wirecraft.assets.robots.kinematics import axis_angle_to_mats
 from wirecraft.assets.wires import WIRE_MODELS
-from wirecraft.experts.base import TABLE_Z, UP, ScriptedExpert, flat, horizontal
-from wirecraft.experts.fsm import Phase
+from wirecraft.experts.base import EXPERTS, TABLE_Z, UP, ScriptedExpert, flat, horizontal
+from wirecraft.experts.fsm import Phase, unwrap_envs
+from wirecraft.geometry import arc_lengths, axis_angle_to_mats
 from wirecraft.numerics import arctan2, dot, matmul, norm
 from wirecraft.sensors import contact_push
-from wirecraft.tasks.assembly import arc_lengths
+
+# The seating expert's per-wire settings, in one place: wire model -> {config field: value}
+# replacing the default for that wire (``SeatingExpertConfig.wire_settings``).  Why each:
+# - rod, fem ``press_lag``: a wire that bends anywhere is dragged along and out of the channel
+#   by a pad 1-2 cm behind its goal rather than pressed in (rod, curved, held out: 94 % at some
+#   step with 2 cm, 96 % with 8 mm; one validation episode diverged as the pad fell 24 mm
+#   behind); the articulated wire's rigid links keep 2 cm.
+# - fem ``press_squeeze``: the soft FEM wire is squashed by the pad rather than wedged (the
+#   wedge was traced on capsules only), so it keeps 0.5 mm: at 0 the pass left it raised on
+#   held-out straight seed 1019, and a second pass pulled it out (thin evidence).
+# - fem ``tuck_outside``: the pressing pass draws in a FEM wire whose farthest point lay
+#   16-28 mm from the centre line, and a tuck there lost 7 of 100 validation episodes; it never
+#   drew in one 43-51 mm out.  Curved, UR5, at the end: validation 99 %, held out 98 %.
+# - rod ``tuck``: built for the articulated wire's rigid links (held out: 92 -> 96 %), the tuck
+#   does not help the rod (94 / 91 % with it against 96 / 93 % without, held out).
+WIRE_SETTINGS: dict[str, dict[str, object]] = {
+    "rod": {"press_lag": 0.008, "tuck": False},
+    "fem": {"press_lag": 0.008, "press_squeeze": 0.0005, "tuck_outside": 0.035},
+}
 
 
 @dataclass(frozen=True)
@@ -192,10 +211,6 @@ class SeatingExpertConfig:
     # position servo pushes on regardless, and 0.5 mm wedged a capsule between the pad and the
     # floor; it sank 5 mm into the channel and shot out, flinging the plug (curved seed 50).
     press_squeeze: float = 0.0
-    # The FEM wire, soft, is squashed by the pad rather than wedged (the wedge was traced on
-    # capsules only), so it keeps 0.5 mm: at 0 the pass left it raised on held-out straight
-    # seed 1019, and a second pass pulled it out (docs/experts.md: thin evidence).
-    press_squeeze_fem: float = 0.0005
     press_margin: float = 0.0005  # m: the pad's footprint stays this far inside the walls
     press_window: float = 0.006  # m of arc: the pad rises this far before a misfit
     press_stop: float = 0.005  # m of arc before the channel's end where the pass ends
@@ -211,11 +226,6 @@ class SeatingExpertConfig:
     # arms' pads lag 1-2 cm wherever they drag the wire, and the slowed goal then used up the
     # time a third pass needs (docs/experts.md, "Three pressing passes").
     press_lag: float = 0.02
-    # The same for the wires that bend anywhere (rod, FEM): a pad 1-2 cm behind its goal
-    # drags such a wire along and out of the channel rather than pressing it in (rod, curved,
-    # held out: 94 % at some step with 2 cm, 96 % with 8 mm; one validation episode diverged
-    # as the pad fell 24 mm behind).
-    press_lag_flex: float = 0.008
     press_lag_slowdown: float = 0.25  # speed factor then
     # m: while the goal is slowed, it also rises this much.  A pad stalled on the wire presses
     # it hard and drags it along by friction (the wire behind the pad was pulled up off the
@@ -245,20 +255,17 @@ class SeatingExpertConfig:
     # Tuck (before the pressing pass): where the released wire has sprung out sideways over
     # the walls, a pad comes down beside it and pushes it back over the channel.
     tuck: bool = True
-    # Wire models the tuck is used on.  It was built for, and helps, the articulated wire's
-    # rigid links (held out: 92 -> 96 %); on the rod it did not (94 / 91 % with it against
-    # 96 / 93 % without, held out).
-    tuck_wires: tuple[str, ...] = ("articulated", "fem")
     tuck_outside: float = 0.004  # m: wire centre this far outside the inner wall calls for it
-    # The FEM wire's tuck waits for a wire far out: the pressing pass draws in a FEM wire
-    # whose farthest point lay 16-28 mm from the centre line, and a tuck there lost 7 of 100
-    # validation episodes; it never drew in one 43-51 mm out (4 of the 5 failures).  Curved,
-    # UR5, at the end: validation 95 -> 99 %, tuning 94 -> 95 %, held out 93 -> 98 %.
-    tuck_outside_fem: float = 0.035  # m outside the inner wall (41 mm from the centre line)
     tuck_margin: float = 0.003  # m: pad face this far beyond the wire where it comes down
     tuck_speed: float = 0.003  # m per step across the channel
     max_grasp_retries: int = 2
     seed: int = 0  # diversity (settle delay, lay slow-down)
+    # wire model -> {field: value} replacing the fields above for that wire (``WIRE_SETTINGS``)
+    wire_settings: dict = field(default_factory=lambda: copy.deepcopy(WIRE_SETTINGS))
+
+    def for_wire(self, model: str) -> SeatingExpertConfig:
+        """This configuration with ``wire_settings[model]`` applied (and no table left)."""
+        return dataclasses.replace(self, wire_settings={}, **self.wire_settings.get(model, {}))
 
     def __post_init__(self) -> None:
         if not self.press_directions or any(d not in (-1, 1) for d in self.press_directions):
@@ -311,7 +318,6 @@ class SeatingExpertConfig:
             "press_travel_reach",
             "press_travel",
             "press_lag",
-            "press_lag_flex",
             "press_lag_lift",
             "press_turn_window",
             "press_yaw_slack",
@@ -321,7 +327,6 @@ class SeatingExpertConfig:
             "press_lead_out",
             "retreat_slide",
             "tuck_outside",
-            "tuck_outside_fem",
             "tuck_margin",
         ):
             validation.non_negative(owner, name, getattr(self, name))
@@ -332,11 +337,20 @@ class SeatingExpertConfig:
         # the pads' long side has no front: a plug's axis lies at most 90 deg from it
         validation.in_range(owner, "grasp_yaw_free", self.grasp_yaw_free, 0.0, math.pi / 2)
         # Either sign: below (+) or above (-) a seated wire's top.
-        for name in ("press_squeeze", "press_squeeze_fem"):
-            validation.finite(owner, name, getattr(self, name))
+        validation.finite(owner, "press_squeeze", self.press_squeeze)
         validation.positive(owner, "tuck_speed", self.tuck_speed)
-        for model in self.tuck_wires:
-            validation.one_of(owner, "tuck_wires", model, WIRE_MODELS.names())
+        validation.boolean(owner, "tuck", self.tuck)
+        validation.mapping(owner, "wire_settings", self.wire_settings)
+        fields = {f.name for f in dataclasses.fields(self)} - {"wire_settings"}
+        for model, settings in self.wire_settings.items():
+            validation.one_of(owner, "wire_settings", model, WIRE_MODELS.names())
+            validation.mapping(owner, f"wire_settings[{model!r}]", settings)
+            for name in settings:
+                validation.one_of(owner, f"wire_settings[{model!r}]", name, sorted(fields))
+            try:
+                self.for_wire(model)  # validates the values
+            except (ValueError, TypeError) as err:
+                raise ValueError(f"{owner}.wire_settings[{model!r}]: {err}") from None
         validation.at_least_int(owner, "place_stall_steps", self.place_stall_steps, 1)
         for name in ("settle_steps", "settle_jitter", "max_grasp_retries"):
             validation.at_least_int(owner, name, getattr(self, name), 0)
@@ -366,6 +380,7 @@ PHASES = (
 )
 
 
+@EXPERTS.register("seating")
 class SeatingExpert(ScriptedExpert):
     """Vectorized scripted expert for the seating task (N environments, N = 1 for one env).
 
@@ -374,6 +389,13 @@ class SeatingExpert(ScriptedExpert):
     """
 
     PHASES = PHASES
+
+    def __init__(self, env_or_envs, config=None, seed: int | None = None) -> None:
+        # Every environment of one expert has the same wire model: its settings apply.
+        config = config or self.config_class()
+        wire = unwrap_envs(env_or_envs)[0].task.assembly.wire.config.model
+        super().__init__(env_or_envs, config.for_wire(wire), seed)
+
     SNAPSHOTS = (
         ("grasp_pos", (3,)),
         ("lift_from", (3,)),
@@ -585,8 +607,7 @@ class SeatingExpert(ScriptedExpert):
             # The pad's goal slows down while the pad lags behind it: a lagging pad that
             # chased a goal further ahead would cut the bends into the walls.
             lag = self._pad_target_world(i) - self._press_target(i, self.press_arc[i])
-            rigid = env.task.assembly.wire.config.model == "articulated"
-            slow = norm(lag[:2]) > (cfg.press_lag if rigid else cfg.press_lag_flex)
+            slow = norm(lag[:2]) > cfg.press_lag
             done = self._advance_press(i, start, stop, cfg.press_lag_slowdown if slow else 1.0)
             target = self._press_target(i, self.press_arc[i])
             if slow:
@@ -835,8 +856,7 @@ class SeatingExpert(ScriptedExpert):
         for k in np.flatnonzero(blocked):
             near |= np.abs(arc - arc[k]) <= cfg.press_window
         wire = task.assembly.wire.config
-        squeeze = cfg.press_squeeze_fem if wire.model == "fem" else cfg.press_squeeze
-        deep = 2 * wire.radius - squeeze
+        deep = 2 * wire.radius - cfg.press_squeeze
         high = channel.wall_height + cfg.press_clearance
         self._profiles[i] = (np.where(near, high, deep), yaws)
         return self._profiles[i]
@@ -889,15 +909,13 @@ class SeatingExpert(ScriptedExpert):
 
     def _needs_tuck(self, i) -> bool:
         """Whether an inner wire point over the board beside the channel lies more than
-        ``tuck_outside`` (``tuck_outside_fem`` for the FEM wire) outside its inner walls, high
+        ``tuck_outside`` (per wire: ``WIRE_SETTINGS``) outside its inner walls, high
         enough that a pad just above the wall tops pushes it (its centre above the pad's
         bottom), while the plug lies below the pads' bottoms: keeps the channel arc where the
         farthest such point lies (``tuck_arc``), the pad that pushes (``tuck_pad``) and its
         start beside the wire (``tuck_from``)."""
         cfg, env = self.config, self.envs[i]
         task = env.task
-        if task.assembly.wire.config.model not in cfg.tuck_wires:
-            return False
         pads = [self._pad_target_world(i, pad) for pad in (0, 1)]
         plug_z = task.assembly.plug_pose(env.data)[0][2]
         if plug_z > min(pad[2] for pad in pads):
@@ -914,9 +932,7 @@ class SeatingExpert(ScriptedExpert):
         push_z = self._wall_top(i) + cfg.press_clearance
         radius = task.assembly.wire.config.radius
         half_width = task.placed.config.inner_width / 2
-        outside = (
-            cfg.tuck_outside_fem if task.assembly.wire.config.model == "fem" else cfg.tuck_outside
-        )
+        outside = cfg.tuck_outside
         ok = (
             (distance > half_width + outside)
             & (world[:, 2] > push_z)

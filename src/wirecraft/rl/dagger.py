@@ -27,15 +27,20 @@ from collections.abc import Callable
 import numpy as np
 from tqdm import tqdm
 
-from wirecraft.experts.reactive import ReactiveInsertionExpert
+from wirecraft.experts.reactive import REACTIVE_EXPERTS
 
 
 def check_dagger_task(task: str, control: str) -> None:
-    """A ValueError unless the reactive expert can label ``task`` under ``control``."""
-    if task != "insertion" or control != "cartesian":
+    """A ValueError unless a reactive expert can label ``task`` under ``control``."""
+    expert = REACTIVE_EXPERTS.get(task) if task in REACTIVE_EXPERTS else None
+    if expert is None or control != expert.CONTROL:
+        needs = " or ".join(
+            f"the {name} task with control={REACTIVE_EXPERTS.get(name).CONTROL!r}"
+            for name in REACTIVE_EXPERTS
+        )
         raise ValueError(
-            "dagger_init_iterations and dagger_aux_lr need the insertion task with "
-            f"control='cartesian' (the reactive expert's), got task={task!r}, control={control!r}"
+            f"dagger_init_iterations and dagger_aux_lr need {needs} (a reactive expert's), "
+            f"got task={task!r}, control={control!r}"
         )
 
 
@@ -112,7 +117,7 @@ def dagger_init(
 
     from wirecraft.rl.ppo import behaviour_clone_init
 
-    expert = ReactiveInsertionExpert(venv)
+    expert = REACTIVE_EXPERTS.get(venv.unwrapped.envs[0].task.name)(venv)
     actor = runner.alg.actor
     rng = np.random.default_rng(seed)
     states, labels, returns, history = [], [], [], []
@@ -168,7 +173,7 @@ def auxiliary_dagger(
     ``Loss/dagger_lr``)."""
     import torch
 
-    expert = ReactiveInsertionExpert(venv)
+    expert = REACTIVE_EXPERTS.get(venv.unwrapped.envs[0].task.name)(venv)
     alg = runner.alg
     optimizer = torch.optim.Adam(alg.actor.parameters(), lr=learning_rate)
     generator = torch.Generator().manual_seed(seed)

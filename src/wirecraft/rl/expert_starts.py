@@ -55,7 +55,7 @@ def record_expert_states(
     try:
         while kept_episodes < episodes:
             for i, env in enumerate(venv.envs):
-                if not succeeded[i] and env._steps % stride == 0:
+                if not succeeded[i] and env.elapsed_steps % stride == 0:
                     pending[i].append(env.get_state())
             obs, _, terminated, truncated, infos = venv.step(expert.act(obs))
             final = infos.get("final_info", {})

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from wirecraft.assets.robots.kinematics import quats_to_mats
 from wirecraft.experts.reactive import StateLayout
+from wirecraft.geometry import quats_to_mats
 
 FINE_SCALES = (0.01, 0.002)  # m
 

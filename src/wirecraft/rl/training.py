@@ -134,8 +134,13 @@ def _check_expert_control(algorithm: str, task: str, env_kwargs: dict, cfg) -> N
         from wirecraft.rl.dagger import check_dagger_task
 
         check_dagger_task(task, control)
-    if algorithm == "ppo" and cfg.actor_inputs != "state" and task != "insertion":
-        raise ValueError(f"actor_inputs={cfg.actor_inputs!r} is computed from the insertion state")
+    from wirecraft.experts.reactive import REACTIVE_EXPERTS
+
+    if algorithm == "ppo" and cfg.actor_inputs != "state" and task not in REACTIVE_EXPERTS:
+        raise ValueError(
+            f"actor_inputs={cfg.actor_inputs!r} is computed from the state layout of a reactive "
+            f"expert's task ({', '.join(REACTIVE_EXPERTS)}), not {task}"
+        )
 
 
 def _new_run(algorithm: str, task: str, env_kwargs: dict, cfg, run_dir: Path) -> Run:

@@ -40,6 +40,7 @@ import numpy as np
 
 from wirecraft import validation
 from wirecraft.assets.robots import RobotHandle
+from wirecraft.assets.robots.base import Workspace
 from wirecraft.assets.wires import WireConfig
 from wirecraft.numerics import matmul, tanh
 from wirecraft.registry import Registry
@@ -52,6 +53,8 @@ from wirecraft.sensors import (
     touching,
 )
 from wirecraft.tasks.frame import Frame
+from wirecraft.tasks.metrics import TaskMetrics
+from wirecraft.tasks.options import TaskOptions
 
 # Episode length unless the task or the user says otherwise.
 EPISODE_SECONDS = 8.0
@@ -110,7 +113,23 @@ class Task(ABC):
     # The body whose subtree is the fixture the robot must not run into (its contact sensors).
     fixture_body: ClassVar[str | None] = None
 
-    def __init__(self, weights: dict[str, float] | None = None) -> None:
+    Options: ClassVar[type[TaskOptions]] = TaskOptions
+    # The family's evaluation metrics (``wirecraft.tasks.metrics``), set by ``metrics_of``.
+    metrics: ClassVar[TaskMetrics]
+    # Keywords of the task variant ``wirecraft demo`` shows.
+    demo_options: ClassVar[dict] = {}
+
+    def __init__(
+        self, options: TaskOptions | None = None, weights: dict[str, float] | None = None, **values
+    ) -> None:
+        if options is None:
+            options = self.Options.build(values)
+        elif values or not isinstance(options, self.Options):
+            raise ValueError(
+                f"{self.name}: pass {self.Options.__name__} or keyword values, not "
+                f"{type(options).__name__} with {sorted(values)}"
+            )
+        self.options = options
         self.weights = dict(self.default_weights)
         weights = {} if weights is None else validation.mapping(self.name, "weights", weights)
         for key, value in weights.items():
@@ -126,6 +145,12 @@ class Task(ABC):
     def robot_name(self) -> str | None:
         """The bound robot's name (None before ``bind``): per-robot layouts key on it."""
         return self.robot.name if self.robot is not None else None
+
+    @property
+    def workspace(self) -> Workspace:
+        """The bound robot's workspace (no limits before ``bind``): sampling ranges of the
+        task's parts intersect it."""
+        return self.robot.spec.workspace if self.robot is not None else Workspace()
 
     @property
     def episode_seconds(self) -> float:
@@ -216,8 +241,13 @@ class Task(ABC):
     def evaluate(self, model, data, diagnostics: bool = True) -> dict[str, float | bool]: ...
 
     def diagnostics(self, model, data) -> dict[str, float]:
-        """Force and cable diagnostics for ``info`` (per simulation: they walk its contacts)."""
-        return self.cable_diagnostics(model, data)
+        """Force and cable diagnostics for ``info`` (per simulation: they walk its contacts):
+        the grasp force on ``held_contacts`` and the cable's health (what the evaluation's
+        shared trace columns read)."""
+        return {
+            "grasp_force": self.grasp_force(model, data, self.held_contacts),
+            **self.cable_diagnostics(model, data),
+        }
 
     def get_state(self) -> dict:
         return {}

@@ -42,14 +42,8 @@ from wirecraft.assets.robots.grippers import (
     GripperSpec,
     build_gripper,
 )
-from wirecraft.assets.robots.kinematics import (
-    mat_to_quat,
-    rot_x,
-    rot_y,
-    rot_z,
-    solve_ik,
-    transform,
-)
+from wirecraft.assets.robots.kinematics import solve_ik
+from wirecraft.geometry import mat_to_quat, rot_x, rot_y, rot_z, transform
 from wirecraft.numerics import dot, matmul, matvec, norm
 from wirecraft.registry import Registry
 
@@ -185,6 +179,16 @@ class ArmJoint:
 
 
 @dataclass(frozen=True)
+class Workspace:
+    """Where a robot can work with its tool pointing down, in the world frame (its base where
+    ``home_reach`` puts it): tasks intersect their sampling ranges with it.  Infinite: no limit
+    inside the table's task region."""
+
+    max_x: float = math.inf  # m: farthest x at which it holds a pose above a part on the table
+    max_height: float = math.inf  # m: highest point at which it holds a part horizontally
+
+
+@dataclass(frozen=True)
 class RobotSpec:
     """Everything needed to build one robot model (a row in the ROBOTS registry)."""
 
@@ -204,6 +208,7 @@ class RobotSpec:
     home_yaw: float = 0.0
     base_mass: float = 2.0
     dataset_note: str = ""
+    workspace: Workspace = Workspace()
 
     def __post_init__(self) -> None:
         owner = f"RobotSpec({self.name})"

@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 
 from wirecraft import physics, validation
-from wirecraft.assets.robots.kinematics import mat_to_quat, rot_z
+from wirecraft.geometry import mat_to_quat, rot_z
 from wirecraft.numerics import norm
 from wirecraft.registry import Registry
 

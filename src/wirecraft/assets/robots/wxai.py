@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 
-from wirecraft.assets.robots.base import ROBOTS, ArmJoint, LinkOffsets, RobotSpec
+from wirecraft.assets.robots.base import ROBOTS, ArmJoint, LinkOffsets, RobotSpec, Workspace
 
 PI = math.pi
 
@@ -61,5 +61,10 @@ WXAI = ROBOTS.register("wxai")(
         home_height=0.12,
         home_seed=(0.0, 1.7, 1.5, -1.35, 0.0, 0.0),
         dataset_note="6 joint angles + gripper opening = 7-d, like the UR5",
+        # With the tool pointing down it cannot hold a pose above a part beyond x = 0.10 m
+        # (0.40 m in front of its base; its elbow reaches its limit near 0.46 m), nor hold a
+        # horizontal plug at a mouth higher than ~0.13 m (measured with the insertion expert;
+        # docs/experts.md, "The WidowX AI's reach").
+        workspace=Workspace(max_x=0.10, max_height=0.13),
     )
 )

@@ -23,8 +23,9 @@ from wirecraft import physics
 from wirecraft.assets.connectors import Connector, add_plug
 from wirecraft.assets.shapes import Box, add_to_body, quat_about
 from wirecraft.assets.wires import WireConfig, WireHandle, add_wire, end_gap
+from wirecraft.geometry import quat_to_mat, rotation_from_axis
 from wirecraft.numerics import arccos, dot, norm
-from wirecraft.sensors import Contacts, body_geom_ids, flex_ids, quat_to_mat
+from wirecraft.sensors import Contacts, body_geom_ids, flex_ids
 
 CLAMP_HALF = (0.02, 0.015, 0.012)  # m
 CLAMP_EXIT_DROP = -0.008  # m: block centre below the wire's start
@@ -247,30 +248,4 @@ class WireAssembly:
         return float("inf") if peak < 1e-9 else 1.0 / peak
 
 
-def arc_lengths(polyline: np.ndarray) -> np.ndarray:
-    """(N,) metres along a polyline from its first point to each of its points."""
-    steps = norm(np.diff(np.asarray(polyline, float), axis=0), axis=1)
-    return np.concatenate([[0.0], np.cumsum(steps)])
-
-
-def resample(polyline: np.ndarray, spacing: float) -> np.ndarray:
-    """Points every ``spacing`` metres along a polyline (both ends kept)."""
-    polyline = np.asarray(polyline, float)
-    arc = arc_lengths(polyline)
-    s = np.linspace(0.0, arc[-1], max(2, int(np.ceil(arc[-1] / spacing)) + 1))
-    return np.column_stack([np.interp(s, arc, polyline[:, k]) for k in range(3)])
-
-
-def rotation_from_axis(axis: np.ndarray, roll: float) -> np.ndarray:
-    """Rotation whose x column is ``axis``, whose y column is horizontal, rolled by ``roll``."""
-    x = np.asarray(axis, float) / norm(axis)
-    y = np.cross([0.0, 0.0, 1.0], x)
-    if norm(y) < 1e-9:
-        y = np.array([0.0, 1.0, 0.0])
-    y /= norm(y)
-    z = np.cross(x, y)
-    c, s = np.cos(roll), np.sin(roll)
-    return np.column_stack([x, c * y + s * z, -s * y + c * z])
-
-
-__all__ = ["WireAssembly", "quat_to_mat", "rotation_from_axis"]
+__all__ = ["WireAssembly"]

@@ -46,15 +46,15 @@ import math
 
 import numpy as np
 
-from wirecraft import validation
+from wirecraft.assets.assembly import WireAssembly
 from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ChannelConfig, add_segmented_channel
 from wirecraft.assets.fixtures.channels import MAX_BEND, NUM_SEGMENTS
-from wirecraft.assets.robots.kinematics import quat_near, rot_z
+from wirecraft.geometry import quat_near, rot_z
 from wirecraft.numerics import norm
 from wirecraft.sensors import body_geom_ids
-from wirecraft.tasks.assembly import WireAssembly
 from wirecraft.tasks.base import TASKS, Task, shaped
+from wirecraft.tasks.seating.options import SeatingOptions
 
 CHANNEL_ENTRY = (0.20, 0.0, 0.0)
 CHANNEL_YAW = math.pi  # runs along -x, towards the robot
@@ -68,7 +68,6 @@ WIRE_ANGLE = (math.radians(20.0), math.radians(35.0))
 PLUG_HEIGHT = (0.06, 0.11)
 SUCCESS_FRACTION = 0.8
 WIRE_SAMPLES = 10
-CHANNELS = ("straight", "curved")
 
 
 @TASKS.register("seating")
@@ -86,11 +85,14 @@ class SeatingTask(Task):
         "collision": -10.0,
     }
 
-    def __init__(self, channel: str = "straight", connector: str = "ethernet", weights=None):
-        super().__init__(weights)
-        validation.one_of("seating", "channel", channel, CHANNELS)
-        self.channel_kind = channel
-        self.connector = make_connector(connector)
+    Options = SeatingOptions
+    demo_options = {"channel": "straight"}
+    options: SeatingOptions
+
+    def __init__(self, options: SeatingOptions | None = None, weights=None, **values):
+        super().__init__(options, weights, **values)
+        self.channel_kind = self.options.channel
+        self.connector = make_connector(self.options.connector)
         self.bends = (0.0,) * (NUM_SEGMENTS - 1)
         self.plug_lead = PLUG_LEAD
 
@@ -247,12 +249,6 @@ class SeatingTask(Task):
             "success": fraction >= SUCCESS_FRACTION,
             "fraction_inside": fraction,
             **(self.diagnostics(model, data) if diagnostics else {}),
-        }
-
-    def diagnostics(self, model, data) -> dict[str, float]:
-        return {
-            "grasp_force": self.grasp_force(model, data, self.assembly.plug_contacts),
-            **self.cable_diagnostics(model, data),
         }
 
     def get_state(self) -> dict:

@@ -11,11 +11,10 @@ Randomizations (each reset, from the reset seed)
     out straight behind the plug and the whole assembly falls and settles for 1 s.  If the
     pitched cable would reach into the table, the assembly is lifted until it clears.
     Port: fixed along the insertion axis (mouth at y = 0.22 m); across it (x) within 28 cm,
-    height within 15 cm (UR5, Panda: the SPEC's ranges).  The smaller WidowX AI, gripper
-    pointing down, cannot hold a horizontal plug at a mouth higher than ~0.13 m nor 0.48 m away
-    from its base: its ports stay within ``PORT_RANGES["wxai"]`` (``port_ranges``), and its
-    plugs within ``PLUG_X_RANGES["wxai"]`` (``plug_x_range``): beyond x = 0.10 m it cannot
-    hold the pose above the plug from which it grasps.
+    height within 15 cm (the SPEC's ranges), within the robot's ``workspace``
+    (``port_ranges``, ``plug_x_range``): the smaller WidowX AI, gripper pointing down, cannot
+    hold a horizontal plug at a mouth higher than ~0.13 m, nor hold the pose above a plug from
+    which it grasps beyond x = 0.10 m, so its ports and plugs stay within those.
 
 Retention (beyond the reference)
     A connector that retains (ethernet and displayport: latch; usb_a: friction; see
@@ -51,32 +50,24 @@ import mujoco
 import numpy as np
 
 from wirecraft import physics
-from wirecraft.assets.connectors import CONNECTORS, add_port, add_retention, make_connector
+from wirecraft.assets.assembly import WireAssembly
+from wirecraft.assets.connectors import add_port, add_retention, make_connector
 from wirecraft.assets.fixtures import PortStandConfig
-from wirecraft.assets.robots.kinematics import cross3, quats_near
 from wirecraft.assets.shapes import add_to_body, quat_about
 from wirecraft.control import commanded_gap
+from wirecraft.geometry import cross3, quats_near
 from wirecraft.numerics import arccos, arcsin, arctan2, dot, matmul, norm
 from wirecraft.sensors import body_geom_ids, contact_normal_force
-from wirecraft.tasks.assembly import WireAssembly
 from wirecraft.tasks.base import TASKS, BatchedTask, add_contact_found, shaped
 from wirecraft.tasks.frame import Frame, dots, norms
+from wirecraft.tasks.insertion.options import InsertionOptions
 
 INSERTION_AXIS = np.array([0.0, 1.0, 0.0])  # world direction the plug moves to seat
 PORT_Y = 0.22  # m, socket mouth along the insertion axis
 PORT_X_RANGE = (-0.14, 0.14)  # m across the axis: 28 cm
 PORT_Z_RANGE = (0.04, 0.19)  # m mouth centre height: 15 cm
-# Per-robot (x, z) port ranges where the SPEC's exceed a robot's reach with the plug held
-# horizontally from above (measured with the scripted expert, docs/tasks.md); the same draws
-# are mapped onto the narrower ranges, so a seed still gives one layout per robot.
-PORT_RANGES = {"wxai": ((-0.14, 0.10), (0.04, 0.13))}
 PLUG_CENTRE = np.array([0.0, -0.02])  # m (x, y) of the plug spawn region
 PLUG_OFFSET = (0.15, 0.05)  # m, +/- across (x) and along (y) the insertion axis
-# Per-robot x ranges of the plug spawn (m, world), mapped from the same draws as PORT_RANGES.
-# The WidowX AI, reaching for a plug beyond x = 0.10 m (0.40 m from its base) with the tool
-# pointing down, cannot hold its approach pose 5 cm above it: the TCP sinks and its pad knocks
-# the plug aside (docs/experts.md, "The WidowX AI's servos").
-PLUG_X_RANGES = {"wxai": (-0.15, 0.10)}
 PLUG_HEIGHT = (0.06, 0.11)  # m
 PLUG_ROLL_PITCH = math.radians(18.0)
 PLUG_YAW = math.radians(36.0)
@@ -136,10 +127,13 @@ class InsertionTask(BatchedTask):
     held_body = "plug"
     fixture_body = "port_mount"  # the port and its stand
 
-    def __init__(self, connector: str = "ethernet", clearance: float = 0.003, weights=None):
-        super().__init__(weights)
-        CONNECTORS.get(connector)  # ValueError listing the valid ones
-        self.connector = make_connector(connector, clearance)
+    Options = InsertionOptions
+    demo_options = {"connector": "ethernet"}
+    options: InsertionOptions
+
+    def __init__(self, options: InsertionOptions | None = None, weights=None, **values):
+        super().__init__(options, weights, **values)
+        self.connector = make_connector(self.options.connector, self.options.clearance)
         self.reset_trackers()
 
     @property
@@ -207,13 +201,19 @@ class InsertionTask(BatchedTask):
 
     # -- episode ----------------------------------------------------------------------------
     def port_ranges(self) -> tuple[tuple[float, float], tuple[float, float]]:
-        """(x range, z range) of the port's mouth for this task's robot (m, world)."""
-        return PORT_RANGES.get(self.robot_name, (PORT_X_RANGE, PORT_Z_RANGE))
+        """(x range, z range) of the port's mouth for this task's robot (m, world): the SPEC's
+        within the robot's workspace.  The same draws are mapped onto a narrower range, so a
+        seed still gives one layout per robot."""
+        workspace = self.workspace
+        return (
+            (PORT_X_RANGE[0], min(PORT_X_RANGE[1], workspace.max_x)),
+            (PORT_Z_RANGE[0], min(PORT_Z_RANGE[1], workspace.max_height)),
+        )
 
     def plug_x_range(self) -> tuple[float, float]:
-        """x range of the plug spawn for this task's robot (m, world)."""
-        spec = (PLUG_CENTRE[0] - PLUG_OFFSET[0], PLUG_CENTRE[0] + PLUG_OFFSET[0])
-        return PLUG_X_RANGES.get(self.robot_name, spec)
+        """x range of the plug spawn for this task's robot (m, world), within its workspace."""
+        high = PLUG_CENTRE[0] + PLUG_OFFSET[0]
+        return (PLUG_CENTRE[0] - PLUG_OFFSET[0], min(high, self.workspace.max_x))
 
     def initialize_episode(self, model, data, rng) -> None:
         x_range, z_range = self.port_ranges()

@@ -12,8 +12,8 @@ Randomizations (each reset, from the reset seed)
     ``max_across`` apart across the lane (rejection sampling): a 0.4 m cable cannot follow a
     zigzag of 12 cm steps through three clips 8.5 cm apart, and its 33 mm segments cannot bend
     sharply enough between slots.  Every clip still lies within +/-6 cm of the lane.  The
-    lane is the line x = 0.10 m, except for the WidowX AI (x = 0.04 m, ``LANE_X_BY_ROBOT``:
-    within its reach); the clamp and cable move with it.
+    lane is the line x = 0.10 m, nearer the robot where its ``workspace`` ends within 6 cm of
+    it (the WidowX AI: x = 0.04 m, ``lane_x``); the clamp and cable move with it.
     Cable: clamp block on the table at the lane's start; the wire leaves it at
     ``wire_angle`` off the lane towards the robot (steep enough that the fallen cable clears
     the first clip), its plug end at 6-11 cm height, rolled +/-18 deg; the assembly then falls
@@ -39,24 +39,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wirecraft import validation
+from wirecraft.assets.assembly import WireAssembly
 from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ClipConfig, PlacedClip, add_clip
-from wirecraft.assets.robots.kinematics import quat_near
+from wirecraft.geometry import quat_near, resample
 from wirecraft.numerics import norm
 from wirecraft.sensors import body_geom_ids
-from wirecraft.tasks.assembly import WireAssembly, resample
 from wirecraft.tasks.base import EPISODE_SECONDS, TASKS, Task, shaped
+from wirecraft.tasks.routing.options import MAX_CLIPS, RoutingOptions
 
 LANE_X = 0.10  # m (world): the lane's line, 0.40 m in front of the WidowX AI's base
-# Per-robot lane lines (m, world); the clips, clamp and cable move with it, from the same draws.
-# The WidowX AI's lane is 6 cm nearer its base, so that no clip (lane +/- LANE_JITTER) lies
-# farther than 0.40 m in front of it: beyond ~0.46 m the arm cannot point the tool down at all
-# (its elbow at its limit), and from 0.40 m on it cannot hold the pose above a plug either
-# (PLUG_X_RANGES, tasks/insertion.py).  With the shared lane its approach stalled short of
-# grasp points past the far clips until the phase timed out, three times in a row
-# (docs/experts.md, "The WidowX AI's reach").
-LANE_X_BY_ROBOT = {"wxai": 0.04}
+# A robot whose workspace ends before LANE_X + LANE_JITTER gets its lane that much nearer
+# (``lane_x``), so that no clip lies beyond its reach; the clips, clamp and cable move with it,
+# from the same draws.  With the shared lane the WidowX AI's approach stalled short of grasp
+# points past the far clips until the phase timed out (docs/experts.md, "The WidowX AI's
+# reach").
 LANE_JITTER = 0.06  # m across the lane
 CLIP_YAW_JITTER = math.radians(15.0)
 PLUG_HEIGHT = (0.06, 0.11)
@@ -97,7 +94,6 @@ MAX_ROUTE = 0.35  # m of a 0.4 m cable the route from the clamp through every sl
 # comes out at 2 N), where 1 mm of interference let it out at 0.5 N, less than the stiff wire
 # pries on a clip when the gripper bends it over the next one (tests/test_routing_layout.py).
 LIP_INTERFERENCE = 0.002  # m
-MAX_CLIPS = 3
 WIRE_SAMPLES = 10
 SLOT_SAMPLING = 0.002  # m between centre-line samples when judging "in the slot"
 
@@ -118,21 +114,16 @@ class RoutingTask(Task):
         "collision": -10.0,
     }
 
-    def __init__(
-        self,
-        num_clips: int = 1,
-        clip_opening: float | None = None,
-        connector: str = "ethernet",
-        weights=None,
-    ):
-        super().__init__(weights)
-        validation.int_in_range("routing", "num_clips", num_clips, 1, MAX_CLIPS)
-        if clip_opening is not None:
-            validation.positive("routing", "clip_opening", clip_opening)
-        self.num_clips = num_clips
-        self.layout = LAYOUTS[num_clips]
-        self.clip_opening = clip_opening
-        self.connector = make_connector(connector)
+    Options = RoutingOptions
+    demo_options = {"num_clips": 1}
+    options: RoutingOptions
+
+    def __init__(self, options: RoutingOptions | None = None, weights=None, **values):
+        super().__init__(options, weights, **values)
+        self.num_clips = self.options.num_clips
+        self.layout = LAYOUTS[self.num_clips]
+        self.clip_opening = self.options.clip_opening
+        self.connector = make_connector(self.options.connector)
 
     @property
     def episode_seconds(self) -> float:
@@ -173,8 +164,9 @@ class RoutingTask(Task):
 
     # -- episode ----------------------------------------------------------------------------
     def lane_x(self) -> float:
-        """x of the lane's line for this task's robot (m, world)."""
-        return LANE_X_BY_ROBOT.get(self.robot_name, LANE_X)
+        """x of the lane's line for this task's robot (m, world): ``LANE_X``, or nearer where
+        the robot's workspace ends within ``LANE_JITTER`` of it (to the micrometre)."""
+        return min(LANE_X, round(self.workspace.max_x - LANE_JITTER, 6))
 
     def initialize_episode(self, model, data, rng) -> None:
         layout = self.layout
@@ -283,10 +275,4 @@ class RoutingTask(Task):
             "success": all(routed),
             "clips_routed": int(sum(routed)),
             **(self.diagnostics(model, data) if diagnostics else {}),
-        }
-
-    def diagnostics(self, model, data) -> dict[str, float]:
-        return {
-            "grasp_force": self.grasp_force(model, data, self.assembly.wire_contacts),
-            **self.cable_diagnostics(model, data),
         }
