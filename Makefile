@@ -72,8 +72,8 @@ bench: install
 	$(VENV)/bin/wirecraft bench --suite envs --task insertion --wire articulated --num-envs 1,16,256 --threads 1,2 --json out/bench/envs.json
 
 lint: install
-	$(VENV)/bin/ruff check src tests benchmarks plugins
-	$(VENV)/bin/ruff format --check src tests benchmarks plugins
+	$(VENV)/bin/ruff check src tests benchmarks research plugins
+	$(VENV)/bin/ruff format --check src tests benchmarks research plugins
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

@@ -1,6 +1,6 @@
 """Robot throughput on one core: ``python benchmarks/bench_robots.py [--seconds 3]``.
 
-The same as ``wirecraft bench --suite robots``; the code lives in wirecraft.benchmarks.robots.
+The same as ``wirecraft bench --suite robots``; the code lives in wirecraft.bench.robots.
 """
 
 import sys

@@ -1,6 +1,6 @@
 """Wire-model throughput on one core: ``python benchmarks/bench_wires.py [--seconds 5]``.
 
-The same as ``wirecraft bench --suite wires``; the code lives in wirecraft.benchmarks.wires.
+The same as ``wirecraft bench --suite wires``; the code lives in wirecraft.bench.wires.
 """
 
 import sys

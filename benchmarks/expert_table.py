@@ -1,17 +1,18 @@
-"""The issue-6 expert table: the scripted experts' success in every cell, under the evaluation
+"""The status table: the scripted experts' success in every cell, under the evaluation
 protocol (``wirecraft.evaluation.run_evaluation``, policy ``scripted``), on a held-out seed list.
 
-    python benchmarks/expert_table.py --out notes/experts [--tasks insertion,routing,seating]
-        [--robots ur5,panda,wxai] [--wires articulated,rod,fem] [--seeds 4] [--episodes 25]
-        [--seed 1000] [--workers 1] [--only ROBOT/WIRE,...]
+    python benchmarks/expert_table.py --out DIR [--tasks FAMILY,...] [--robots ur5,panda,wxai]
+        [--wires articulated,rod,fem] [--seeds 4] [--episodes 25] [--seed 1000] [--workers 1]
+        [--only ROBOT/WIRE,...] [--readme README.md]
 
-Cells: every task variant (5 connectors at 3 mm; 1, 2 and 3 clips; straight and curved channel)
+Cells: every standard variant of every registered family (``TaskMetrics.standard_variants``)
 for the UR5 with the articulated wire, and for each other robot (articulated wire) and each
 other wire (UR5).  Each cell's payload is written to ``OUT/<task>-<variant>-<robot>-<wire>.json``
 as soon as it finishes; a rerun skips cells already there (delete a file to redo it), so an
 interrupted table resumes.  At the end it prints a Markdown table: success at some step and at
-the end of the episode (mean +/- std over seeds), the target (98 % for the UR5 with the
-articulated wire, 95 % otherwise, on success at some step) and whether the cell reached it.
+the end of the episode (mean over seeds), against the target (98 % for the UR5 with the
+articulated wire, 95 % otherwise, on success at some step).  ``--readme`` writes that table
+into the file between ``<!-- status-table -->`` and ``<!-- /status-table -->``.
 """
 
 from __future__ import annotations
@@ -25,14 +26,10 @@ from pathlib import Path
 from wirecraft.assets.robots import ROBOTS
 from wirecraft.assets.wires import WIRE_MODELS
 from wirecraft.evaluation.protocol import run_evaluation
+from wirecraft.tasks import TASKS
 
-VARIANTS = {
-    "insertion": [
-        {"connector": c} for c in ("ethernet", "displayport", "usb_a", "cylinder", "cuboid")
-    ],
-    "routing": [{"num_clips": k} for k in (1, 2, 3)],
-    "seating": [{"channel": c} for c in ("straight", "curved")],
-}
+VARIANTS = {name: TASKS.get(name).metrics.standard_variants() for name in TASKS}
+MARKERS = ("<!-- status-table -->", "<!-- /status-table -->")
 BASE = ("ur5", "articulated")
 TARGETS = {BASE: 0.98}
 OTHER_TARGET = 0.95
@@ -88,10 +85,49 @@ def table(rows) -> str:
     return "\n".join(lines)
 
 
+def matrix(rows, pairs) -> str:
+    """Variants down, robot / wire pairs across; each cell success at some step / at the end
+    (%, mean over seeds), bold where the target is missed, - where not run."""
+    head = " | ".join("UR5 + articulated" if p == BASE else f"{p[0]} + {p[1]}" for p in pairs)
+    lines = [f"| variant | {head} |", "|---|" + "---:|" * len(pairs)]
+    cells = {}
+    for task, variant, robot, wire, payload in rows:
+        cells[(task, variant, (robot, wire))] = payload
+    for task, variant in dict.fromkeys((r[0], r[1]) for r in rows):
+        out = []
+        for pair in pairs:
+            payload = cells.get((task, variant, pair))
+            if payload is None:
+                out.append("-")
+                continue
+            m = payload["metrics"]
+            text = f"{100 * m['success']['mean']:.0f} / {100 * m['success_at_end']['mean']:.0f}"
+            missed = m["success"]["mean"] < TARGETS.get(pair, OTHER_TARGET)
+            out.append(f"**{text}**" if missed else text)
+        lines.append(f"| {task}, {variant} | " + " | ".join(out) + " |")
+    return "\n".join(lines)
+
+
+def write_readme(path: Path, text: str) -> None:
+    """Replace the table between ``MARKERS`` in ``path`` with ``text``."""
+    body = path.read_text()
+    start, end = (body.find(m) for m in MARKERS)
+    if start < 0 or end < start:
+        raise SystemExit(f"{path}: no {MARKERS[0]} ... {MARKERS[1]} block to replace")
+    body = body[: start + len(MARKERS[0])] + "\n" + text + "\n" + body[end:]
+    write_atomic_text(path, body)
+
+
+def write_atomic_text(path: Path, text: str) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", required=True, type=Path, help="directory of per-cell JSON")
-    parser.add_argument("--tasks", default="insertion,routing,seating")
+    parser.add_argument("--tasks", default=",".join(TASKS), help="families (default: all)")
     parser.add_argument("--robots", default="ur5,panda,wxai")
     parser.add_argument("--wires", default="articulated,rod,fem")
     parser.add_argument("--only", default="", help="ROBOT/WIRE pairs, e.g. panda/articulated")
@@ -100,6 +136,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1000, help="held-out seed list")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--dry-run", action="store_true", help="print the table of done cells")
+    parser.add_argument("--readme", type=Path, help="write the table into this file's block")
     args = parser.parse_args()
     tasks = [t for t in args.tasks.split(",") if t]
     unknown = [t for t in tasks if t not in VARIANTS]
@@ -153,6 +190,10 @@ def main() -> None:
         variant_text = ", ".join(f"{k}={v}" for k, v in variant.items())
         rows.append((task, variant_text, robot, wire, payload))
     print(table(rows))
+    if args.readme:
+        pairs = list(dict.fromkeys((r[2], r[3]) for r in rows))
+        write_readme(args.readme, matrix(rows, pairs))
+        print(f"wrote the status table into {args.readme}")
 
 
 if __name__ == "__main__":

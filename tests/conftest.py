@@ -17,10 +17,14 @@ if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
 
 @pytest.fixture
 def load_benchmark():
-    """Imports a script of benchmarks/ by name (they are scripts, not a package)."""
+    """Imports a script of benchmarks/ or research/ by name (they are scripts, not a package)."""
 
     def load(name: str):
-        path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+        root = Path(__file__).resolve().parents[1]
+        path = next(
+            (p for d in ("benchmarks", "research") if (p := root / d / f"{name}.py").exists()),
+            root / "benchmarks" / f"{name}.py",
+        )
         spec = importlib.util.spec_from_file_location(name, path)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)

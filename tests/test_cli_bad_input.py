@@ -409,7 +409,7 @@ def test_mujoco_warnings_write_no_log_file(tmp_path, hooked):
 
 
 def test_a_video_is_published_only_when_complete(tmp_path):
-    from wirecraft.video import VideoWriter, write_mp4
+    from wirecraft.mp4 import VideoWriter, write_mp4
 
     frames = np.zeros((3, 16, 16, 3), np.uint8)
     assert write_mp4(frames, tmp_path / "ok.mp4", 10).stat().st_size > 0

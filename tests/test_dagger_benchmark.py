@@ -1,4 +1,4 @@
-"""benchmarks/dagger_insertion.py: its labelling experts (the scripted one with diversity off,
+"""research/dagger_insertion.py: its labelling experts (the scripted one with diversity off,
 unlimited retries and goals re-derived from the current state; the reactive one) solve insertion
 on their own, and a state that carries stale expert memory starts the scripted expert over."""
 

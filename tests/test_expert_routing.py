@@ -37,7 +37,7 @@ def test_routes_one_clip(seed):
 
 # Seeds 29 and 35 failed (each episode run alone, as here) before the changes for a slot link
 # that crosses the clip aslant (grasp at a joint, that joint between the pads past the slot,
-# pads turned against the link's yaw); benchmarks/eval_routing_expert.py, seeds 0-49: 2 clips
+# pads turned against the link's yaw); research/eval_routing_expert.py, seeds 0-49: 2 clips
 # 46/50 -> 48/50 at the end.
 @pytest.mark.parametrize("seed", [29, 35])
 def test_routes_two_clips_seeds_that_used_to_fail(seed):
@@ -68,7 +68,7 @@ def test_routes_three_clips_after_a_retry():
     env.close()
 
 
-# Measured with benchmarks/eval_routing_expert.py (tuning seeds 0-49, 1440-step episodes): 3 clips
+# Measured with research/eval_routing_expert.py (tuning seeds 0-49, 1440-step episodes): 3 clips
 # 86 % at the end; seed 1 still fails (the second clip routed 4 times: hops of 31 and 28 deg),
 # so this stays a non-strict xfail until the expert reaches the >= 98 % target.
 @pytest.mark.slow

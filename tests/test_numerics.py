@@ -20,7 +20,7 @@ OFF_THE_EPISODE_PATH = (
     "rl/",
     "evaluation/report.py",
     "evaluation/video.py",
-    "benchmarks/",
+    "bench/",
     "cli.py",
     "numerics.py",
 )

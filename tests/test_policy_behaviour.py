@@ -1,4 +1,4 @@
-"""benchmarks/policy_behaviour.py on the scripted expert, whose grasp is known: it closes
+"""research/policy_behaviour.py on the scripted expert, whose grasp is known: it closes
 across the tail, lifts the plug off the table and inserts it."""
 
 from argparse import Namespace

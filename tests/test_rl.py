@@ -99,13 +99,21 @@ def test_overrides_parse_to_the_field_types():
     with pytest.raises(ValueError, match="cannot read"):
         parse_override("close_pause=0.5,1", expert)
     # a tuple of names reads as names (the config itself checks them)
+    import dataclasses
+
     from wirecraft.experts.seating import SeatingExpertConfig
 
+    @dataclasses.dataclass
+    class Named:
+        wires: tuple[str, ...] = ("articulated",)
+
+    assert parse_override("wires=articulated, rod", Named()) == ("wires", ("articulated", "rod"))
     seating = SeatingExpertConfig()
-    assert parse_override("tuck_wires=articulated, rod", seating) == (
-        "tuck_wires",
-        ("articulated", "rod"),
-    )
+    # a table reads as a JSON object
+    table = parse_override('wire_settings={"fem": {"tuck": false}}', seating)
+    assert table == ("wire_settings", {"fem": {"tuck": False}})
+    with pytest.raises(ValueError, match="cannot read 'fem' as dict"):
+        parse_override("wire_settings=fem", seating)
     # a field that is None now reads as its declared type (``float | None``)
     floorless = SeatingExpertConfig(lay_table_clearance=None)
     assert parse_override("lay_table_clearance=0.001", floorless) == ("lay_table_clearance", 0.001)

@@ -150,7 +150,7 @@ def cmd_list(args) -> int:
     from wirecraft.assets.robots import ROBOTS
     from wirecraft.assets.wires import WIRE_MODELS
     from wirecraft.control import CONTROLLERS
-    from wirecraft.scenes import SCENES
+    from wirecraft.showcase import SCENES
 
     listing = {
         "tasks": register_gym_ids(),
@@ -207,7 +207,7 @@ def cmd_view(args) -> int:
 
     from wirecraft.render import FastRenderer, save_png
     from wirecraft.scene import compile_spec
-    from wirecraft.scenes import SCENES
+    from wirecraft.showcase import SCENES
 
     build = SCENES.get(args.scene)
     if not args.headless:
@@ -334,7 +334,7 @@ def cmd_bench(args) -> int:
     if args.suite == "robots":
         only_with(args, "--suite wires or --suite envs", "--wire")
     from wirecraft.assets.wires import WIRE_MODELS
-    from wirecraft.benchmarks import robots, wires
+    from wirecraft.bench import robots, wires
 
     for wire in args.wire or []:
         if wire not in WIRE_MODELS.names():
@@ -350,7 +350,7 @@ def cmd_bench(args) -> int:
         robots.print_table(rows)
     else:
         from wirecraft import register_gym_ids
-        from wirecraft.benchmarks import envs
+        from wirecraft.bench import envs
         from wirecraft.tasks import default_family
 
         tasks = args.task or [default_family()]

@@ -23,9 +23,9 @@ from tqdm import tqdm
 from wirecraft.assets.connectors import add_plug, add_port, make_connector
 from wirecraft.assets.fixtures import ChannelConfig, add_board, add_channel, add_clip
 from wirecraft.assets.wires import WIRE_MODELS, WireConfig, add_wire
+from wirecraft.mp4 import write_mp4
 from wirecraft.render import FastRenderer, ViewPoint, save_png
 from wirecraft.scene import add_table, compile_spec, new_spec
-from wirecraft.video import write_mp4
 
 BOARD_TOP = 0.01
 DROP_HEIGHT = 0.04  # m above the channel floor

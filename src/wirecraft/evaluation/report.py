@@ -10,7 +10,7 @@ Layout::
     DIR/index.html
     DIR/runs/SLUG.json         the payload of ``wirecraft eval --json``
     DIR/traces/SLUG.parquet    per-step traces (traces.py)
-    DIR/videos/SLUG/*.mp4      chosen episodes (video.py)
+    DIR/videos/SLUG/*.mp4      chosen episodes (evaluation/video.py)
     DIR/plots/*.png            success by variant, failure labels, traces per run
 """
 

@@ -17,8 +17,8 @@ import numpy as np
 from wirecraft.envs.env import CONTROL_HZ
 from wirecraft.evaluation import retention
 from wirecraft.evaluation.policies import policy_phase_names
+from wirecraft.mp4 import VideoWriter
 from wirecraft.torch_threads import torch_threads as limit_torch_threads
-from wirecraft.video import VideoWriter
 
 FRAME_EVERY = 2  # control steps per video frame: 30 frames/s
 SIDE_SIZE = (360, 270)  # width, height

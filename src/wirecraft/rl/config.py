@@ -11,6 +11,7 @@ environments is N env steps), as in the reference's step budgets.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import typing
 from typing import Any, ClassVar
@@ -351,7 +352,8 @@ def _declared_example(cls, name: str):
 def parse_override(text: str, cfg) -> tuple[str, Any]:
     """``NAME=VALUE`` to a typed (name, value) for ``cfg``'s field ``NAME`` (any config
     dataclass; lists: comma-separated, of the current tuple's element type (str, float or
-    int); booleans: true/false; none: None; a field now None reads as its declared type)."""
+    int); booleans: true/false; tables (dicts): a JSON object; none: None; a field now None
+    reads as its declared type)."""
     if "=" not in text:
         raise ValueError(f"--set expects NAME=VALUE, got {text!r}")
     name, raw = (s.strip() for s in text.split("=", 1))
@@ -371,6 +373,11 @@ def parse_override(text: str, cfg) -> tuple[str, Any]:
             if raw.lower() not in ("true", "false", "1", "0"):
                 raise ValueError
             return name, raw.lower() in ("true", "1")
+        if isinstance(current, dict):
+            value = json.loads(raw)
+            if not isinstance(value, dict):
+                raise ValueError
+            return name, value
         if isinstance(current, tuple):
             if any(isinstance(v, str) for v in current):
                 element = str

@@ -1,10 +1,10 @@
 """WireCraft as a LeRobot environment plug-in.
 
 LeRobot imports this package at start-up (its distribution name starts with ``lerobot_env_``);
-importing it registers one ``EnvConfig`` per WireCraft task family (``wirecraft_insertion``,
-``wirecraft_routing``, ``wirecraft_seating``) and their gymnasium ids
-(``WireCraftLeRobot/ConnectorInsertion-v0``, ...).  Importing it is cheap: wirecraft itself is
-imported only when a configuration is built.  See docs/lerobot.md.
+importing it registers one ``EnvConfig`` per registered WireCraft task family
+(``wirecraft_insertion``, ``wirecraft_routing``, ``wirecraft_seating``, built from each
+family's task options) and their gymnasium ids (``WireCraftLeRobot/ConnectorInsertion-v0``,
+...).  See docs/lerobot.md.
 """
 
 from __future__ import annotations
@@ -13,11 +13,9 @@ import gymnasium as gym
 
 from lerobot_env_wirecraft.configs import (
     GYM_NAMESPACE,
-    TASK_NAMES,
     WireCraftEnvConfig,
-    WireCraftInsertionEnv,
-    WireCraftRoutingEnv,
-    WireCraftSeatingEnv,
+    family_configs,
+    gym_name,
 )
 from wirecraft.lerobot_compat import quiet_torchcodec
 
@@ -25,8 +23,9 @@ from wirecraft.lerobot_compat import quiet_torchcodec
 # which would otherwise log torchcodec's loading traceback where FFmpeg is missing.
 quiet_torchcodec()
 
-for _family, _name in TASK_NAMES.items():
-    _id = f"{GYM_NAMESPACE}/{_name}"
+CONFIGS = family_configs()
+for _family in CONFIGS:
+    _id = f"{GYM_NAMESPACE}/{gym_name(_family)}"
     if _id not in gym.registry:
         gym.register(
             id=_id,
@@ -35,11 +34,4 @@ for _family, _name in TASK_NAMES.items():
             disable_env_checker=True,
         )
 
-__all__ = [
-    "GYM_NAMESPACE",
-    "TASK_NAMES",
-    "WireCraftEnvConfig",
-    "WireCraftInsertionEnv",
-    "WireCraftRoutingEnv",
-    "WireCraftSeatingEnv",
-]
+__all__ = ["CONFIGS", "GYM_NAMESPACE", "WireCraftEnvConfig", "family_configs", "gym_name"]

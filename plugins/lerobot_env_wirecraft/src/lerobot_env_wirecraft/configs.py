@@ -1,8 +1,10 @@
-"""LeRobot ``EnvConfig`` subclasses, one per WireCraft task family.
+"""LeRobot ``EnvConfig`` subclasses, one per registered WireCraft task family.
 
-``--env.type=wirecraft_insertion | wirecraft_routing | wirecraft_seating``; every field is a
-command-line option (``--env.connector=usb_a``, ``--env.fps=10``, ...).  Task options left at
-None take the task's own default (what ``wirecraft collect`` uses when the flag is not given).
+``--env.type=wirecraft_<family>`` (``wirecraft_insertion``, ``wirecraft_routing``,
+``wirecraft_seating``); every field is a command-line option (``--env.connector=usb_a``,
+``--env.fps=10``, ...).  The family's task options (``wirecraft.tasks.TaskOptions``) become
+fields; left at None they take the task's own default (what ``wirecraft collect`` uses when the
+flag is not given).
 ``features`` / ``features_map`` follow the dataset schema ``wirecraft collect`` writes
 (``wirecraft.datasets.schema``): ``observation.state``, ``observation.cartesian_state``,
 ``observation.images.cam_side`` / ``cam_wrist`` and ``action``.
@@ -10,6 +12,9 @@ None take the task's own default (what ``wirecraft collect`` uses when the flag 
 
 from __future__ import annotations
 
+import dataclasses
+import types
+import typing
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -19,20 +24,15 @@ from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
 GYM_NAMESPACE = "WireCraftLeRobot"
 PACKAGE = "lerobot_env_wirecraft"
-# Task family -> gymnasium name under GYM_NAMESPACE (WireCraft's own ids' names).
-TASK_NAMES = {
-    "insertion": "ConnectorInsertion-v0",
-    "routing": "ClipRouting-v0",
-    "seating": "ChannelSeating-v0",
-}
 CARTESIAN_FEATURE = "observation.cartesian_state"
 
 
 @dataclass
 class WireCraftEnvConfig(EnvConfig):
-    """Options shared by the three families (not registered itself)."""
+    """Options shared by every family (not registered itself; ``family_configs`` builds one
+    subclass per family)."""
 
-    family: ClassVar[str] = "insertion"
+    family: ClassVar[str] = ""
     # Task options each family passes to the environment (None: the task's default).
     task_options: ClassVar[tuple[str, ...]] = ()
 
@@ -46,7 +46,6 @@ class WireCraftEnvConfig(EnvConfig):
     # "env": the dataset's `action.env` (60 / fps actions of the environment in `control` mode).
     action_type: str = "dataset"
     control: str | None = None  # action_type "env" only; None: the scripted expert's mode
-    connector: str | None = None
     render_mode: str = "rgb_array"
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=dict)
@@ -57,12 +56,13 @@ class WireCraftEnvConfig(EnvConfig):
         from wirecraft.datasets import schema
         from wirecraft.envs.env import default_episode_seconds
 
+        name = gym_name(self.family)
         if self.task is None:
-            self.task = TASK_NAMES[self.family]
-        if self.task != TASK_NAMES[self.family]:
+            self.task = name
+        if self.task != name:
             raise ValueError(
-                f"{self.type}: task must be {TASK_NAMES[self.family]!r} (pick the family with "
-                f"--env.type), got {self.task!r}"
+                f"{self.type}: task must be {name!r} (pick the family with --env.type), got "
+                f"{self.task!r}"
             )
         k = steps_per_frame(self.fps)
         control = env_control(self.family, self.action_type, self.control)
@@ -109,8 +109,7 @@ class WireCraftEnvConfig(EnvConfig):
 
     def task_kwargs(self) -> dict:
         """The task options given (None: left to the task's default)."""
-        names = ("connector", *self.task_options)
-        return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
+        return {n: getattr(self, n) for n in self.task_options if getattr(self, n) is not None}
 
     @property
     def gym_kwargs(self) -> dict:
@@ -130,29 +129,41 @@ class WireCraftEnvConfig(EnvConfig):
         }
 
 
-@EnvConfig.register_subclass("wirecraft_insertion")
-@dataclass
-class WireCraftInsertionEnv(WireCraftEnvConfig):
-    family: ClassVar[str] = "insertion"
-    task_options: ClassVar[tuple[str, ...]] = ("clearance",)
+def gym_name(family: str) -> str:
+    """The family's gymnasium name under ``GYM_NAMESPACE``: WireCraft's own id's name."""
+    from wirecraft.tasks import TASKS
 
-    clearance: float | None = None  # m
+    return TASKS.get(family).gym_id.split("/", 1)[1]
 
 
-@EnvConfig.register_subclass("wirecraft_routing")
-@dataclass
-class WireCraftRoutingEnv(WireCraftEnvConfig):
-    family: ClassVar[str] = "routing"
-    task_options: ClassVar[tuple[str, ...]] = ("num_clips", "clip_opening")
-
-    num_clips: int | None = None
-    clip_opening: float | None = None  # m
+def _optional(hint):
+    return hint if types.NoneType in typing.get_args(hint) else hint | None
 
 
-@EnvConfig.register_subclass("wirecraft_seating")
-@dataclass
-class WireCraftSeatingEnv(WireCraftEnvConfig):
-    family: ClassVar[str] = "seating"
-    task_options: ClassVar[tuple[str, ...]] = ("channel",)
+def family_configs() -> dict[str, type[WireCraftEnvConfig]]:
+    """One registered ``EnvConfig`` subclass per WireCraft task family (``wirecraft_<family>``),
+    whose extra fields are the family's task options, each None by default."""
+    from wirecraft.tasks import TASKS
 
-    channel: str | None = None  # straight or curved
+    configs = {}
+    for family in TASKS:
+        env_type = f"wirecraft_{family}"
+        try:
+            configs[family] = EnvConfig.get_choice_class(env_type)
+            continue
+        except KeyError:
+            pass
+        options = TASKS.get(family).Options
+        hints = typing.get_type_hints(options)
+        fields = [
+            (f.name, _optional(hints[f.name]), field(default=None))
+            for f in dataclasses.fields(options)
+        ]
+        title = "".join(part.capitalize() for part in family.split("_"))
+        cls = dataclasses.make_dataclass(
+            f"WireCraft{title}Env", fields, bases=(WireCraftEnvConfig,), module=__name__
+        )
+        cls.family = family
+        cls.task_options = tuple(name for name, _, _ in fields)
+        configs[family] = EnvConfig.register_subclass(env_type)(cls)
+    return configs

@@ -73,15 +73,14 @@ def steps_per_frame(fps: int) -> int:
 class WireCraftLeRobotEnv(gym.Env):
     """A WireCraft task family stepped one dataset frame (``1 / fps`` s) at a time.
 
-    ``task``: insertion, routing or seating; other keywords go to ``wirecraft.make`` (robot,
-    wire, image_size, episode_seconds, connector, clearance, num_clips, clip_opening,
-    channel, ...)."""
+    ``task``: a WireCraft task family; other keywords go to ``wirecraft.make`` (robot, wire,
+    image_size, episode_seconds and the family's task options)."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
     def __init__(
         self,
-        task: str = "insertion",
+        task: str,
         fps: int = 30,
         action_type: str = "dataset",
         control: str | None = None,

@@ -1,6 +1,6 @@
 """Where the articulated wire's joints lie when each routing push ends, against its outcome:
 
-    python benchmarks/routing_push_joints.py --num-clips 3 --episodes 50 --first-seed 2000
+    python research/routing_push_joints.py --num-clips 3 --episodes 50 --first-seed 2000
         [--robot panda] [--set FIELD=VALUE ...] [--json FILE]
 
 Runs the routing expert (as ``eval_routing_expert.py`` does) and, at the end of every push of

@@ -1,6 +1,6 @@
 """Success of the routing expert over seeds:
 
-    python benchmarks/eval_routing_expert.py --num-clips 3 --episodes 100 [--wire rod]
+    python research/eval_routing_expert.py --num-clips 3 --episodes 100 [--wire rod]
         [--first-seed 0] [--episode-seconds S] [--verbose] [--set FIELD=VALUE ...]
 
 Each episode is reset with its seed (first-seed, first-seed + 1, ...) and run to the end (the

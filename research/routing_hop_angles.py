@@ -1,6 +1,6 @@
 """The steepest clip-to-clip hop of each routing layout, per seed:
 
-    python benchmarks/routing_hop_angles.py --num-clips 3 --episodes 100 --first-seed 1000
+    python research/routing_hop_angles.py --num-clips 3 --episodes 100 --first-seed 1000
 
 For each seed (reset as ``eval_routing_expert.py`` resets it) prints the largest angle
 between a clip's slot and the straight hop to a neighbouring clip, and the angle at which the

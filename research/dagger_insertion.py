@@ -1,6 +1,6 @@
 """DAgger on connector insertion: can a state policy imitate the scripted expert closed loop?
 
-    python benchmarks/dagger_insertion.py --out DIR [--iterations 8] [--connector ethernet]
+    python research/dagger_insertion.py --out DIR [--iterations 8] [--connector ethernet]
         [--num-envs 64] [--eval-envs 32] [--hidden 256,256] [--epochs 15] [--threads 2]
         [--expert scripted|reactive] [--expert-gain G] [--features state|relative]
 

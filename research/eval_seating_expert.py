@@ -1,5 +1,5 @@
 """Success of the seating expert over seeds, per channel shape:
-python benchmarks/eval_seating_expert.py --channels straight,curved --seeds 100
+python research/eval_seating_expert.py --channels straight,curved --seeds 100
 [--wire articulated] [--robot ur5] [--first-seed 0] [--verbose] [--set lay_turn=false ...]
 [--chained-expert-seed N]
 (``--set`` overrides ``SeatingExpertConfig`` fields, for comparing variants).

@@ -1,6 +1,6 @@
 """Success of the scripted insertion expert over seeded episodes (until ``wirecraft eval`` exists).
 
-    python benchmarks/eval_insertion_expert.py [--robot ur5] [--wire articulated]
+    python research/eval_insertion_expert.py [--robot ur5] [--wire articulated]
         [--connector ethernet|all|a,b] [--episodes 20] [--seed-start 0] [--clearance 0.003]
         [--diversity | --no-diversity] [--hold] [--set name=value ...] [--json out.json] [-v]
 

@@ -1,6 +1,6 @@
 """What an insertion policy does, step window by step window: the grasp, the lift, the press.
 
-    python benchmarks/policy_behaviour.py --policy RUN_DIR|CHECKPOINT|scripted
+    python research/policy_behaviour.py --policy RUN_DIR|CHECKPOINT|scripted
         [--connector ethernet] [--robot ur5] [--num-envs 16] [--seed 123] [--window 40]
         [--threads 2] [--json out.json]
 
