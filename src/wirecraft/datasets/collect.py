@@ -41,6 +41,7 @@ import numpy as np
 from wirecraft.datasets import schema
 from wirecraft.datasets.recorder import Episode, EpisodeRecorder
 from wirecraft.torch_threads import DEFAULT_TORCH_THREADS, set_torch_threads
+from wirecraft.workers import open_workers
 
 SETTINGS_FILE = "meta/wirecraft_collect.json"
 DEFAULT_IMAGE_SIZE = 224
@@ -235,96 +236,6 @@ def run_episode(settings: CollectSettings | dict, attempt: int) -> Episode:
     )
     episode.success = bool(episode.success and not info["diverged"])
     return episode
-
-
-def _worker_init() -> None:
-    # Ctrl-C in a terminal reaches the whole process group: only the main process decides.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-# -- executors: where episodes are generated ---------------------------------------------------
-class _InProcess:
-    window = 1
-
-    def __init__(self, settings: CollectSettings) -> None:
-        self.settings = settings
-
-    def submit(self, attempt: int):
-        return attempt
-
-    def result(self, handle, timeout: float):
-        return run_episode(self.settings, handle)
-
-    def close(self) -> None:
-        pass
-
-
-class _ProcessPool:
-    def __init__(self, settings: CollectSettings, workers: int) -> None:
-        import multiprocessing
-
-        self.settings = settings.to_dict()
-        self.window = 2 * workers
-        self.pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_worker_init)
-
-    def submit(self, attempt: int):
-        return self.pool.apply_async(run_episode, (self.settings, attempt))
-
-    def result(self, handle, timeout: float):
-        import multiprocessing
-
-        try:
-            return handle.get(timeout)
-        except multiprocessing.TimeoutError:
-            return None
-
-    def close(self) -> None:
-        self.pool.terminate()  # queued attempts past the target are not needed
-        self.pool.join()
-
-
-class _Ray:
-    def __init__(self, settings: CollectSettings, address: str, workers: int) -> None:
-        try:
-            import ray
-        except ImportError as err:
-            raise RuntimeError(f"--ray needs the ray package: {err}") from None
-        self.ray = ray
-        self.owns = not ray.is_initialized()
-        if self.owns:
-            if address == "local":
-                ray.init(
-                    num_cpus=max(1, workers),
-                    include_dashboard=False,
-                    log_to_driver=False,
-                    logging_level="warning",
-                )
-            else:
-                ray.init(address=address, log_to_driver=False, logging_level="warning")
-        cpus = int(ray.cluster_resources().get("CPU", 1))
-        self.window = 2 * max(1, cpus)
-        self.settings = settings.to_dict()
-        self.remote = ray.remote(num_cpus=1)(run_episode)
-        self.pending: set = set()
-
-    def submit(self, attempt: int):
-        ref = self.remote.remote(self.settings, attempt)
-        self.pending.add(ref)
-        return ref
-
-    def result(self, handle, timeout: float):
-        ready, _ = self.ray.wait([handle], timeout=timeout)
-        if not ready:
-            return None
-        self.pending.discard(handle)
-        return self.ray.get(handle)
-
-    def close(self) -> None:
-        for ref in self.pending:
-            self.ray.cancel(ref, force=True)
-        self.pending.clear()
-        if self.owns:
-            self.ray.shutdown()
 
 
 # -- signals ------------------------------------------------------------------------------
@@ -564,6 +475,7 @@ def collect(
         }
 
     executor = None
+    settings_dict = settings.to_dict()
     torch_before = None
     bar = tqdm(
         total=episodes,
@@ -583,18 +495,14 @@ def collect(
         nonlocal submitted
         limit = min(executor.window, episodes - report.saved)
         while len(pending) < limit and submitted < max_attempts:
-            pending.append((submitted, executor.submit(submitted), time.monotonic()))
+            handle = executor.submit(run_episode, settings_dict, submitted)
+            pending.append((submitted, handle, time.monotonic()))
             submitted += 1
 
     try:
         with _StopOnSignal() as stopper:
             if report.saved < episodes and next_attempt < max_attempts:
-                if ray_address:
-                    executor = _Ray(settings, ray_address, workers)
-                elif workers == 0:
-                    executor = _InProcess(settings)
-                else:
-                    executor = _ProcessPool(settings, workers)
+                executor = open_workers(workers, ray_address or None)
                 submit_window()
             robot_type = env.unwrapped.robot_name
             writer = _open_writer(

@@ -45,6 +45,7 @@ from wirecraft.tasks import TASKS
 from wirecraft.tasks.options import split_options
 from wirecraft.torch_threads import DEFAULT_TORCH_THREADS, check_torch_threads
 from wirecraft.torch_threads import torch_threads as limit_torch_threads
+from wirecraft.workers import open_workers
 
 # Episode flags every family's summary adds to its success flags.
 EPISODE_FLAGS = ("retain_success", "success_at_end")
@@ -310,56 +311,19 @@ def _run_all(config: EvalConfig, specs, workers: int, ray_address: str | None, s
     )
     results: list[EpisodeResult] = []
     try:
-        if ray_address is not None:
-            results = _run_ray(config, chunks, ray_address, bar)
-        elif workers <= 1:
+        if ray_address is None and workers <= 1:
             for chunk in chunks:
                 results += run_chunk(config, chunk, progress=bar.update)
         else:
-            results = _run_pool(config, chunks, workers, bar)
+            # Ray started here gets every CPU of this machine.
+            count = (os.cpu_count() or 1) if ray_address is not None else workers
+            with open_workers(count, ray_address) as pool:
+                for done in pool.map(run_chunk, ((config, chunk) for chunk in chunks)):
+                    results += done
+                    bar.update(len(done))
     finally:
         bar.close()
     return sorted(results, key=lambda r: (r.spec.seed_index, r.spec.episode))
-
-
-def _pool_chunk(config, chunk):
-    return run_chunk(config, chunk)
-
-
-def _run_pool(config, chunks, workers, bar):
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    # spawn: a fresh interpreter per worker (no inherited OpenGL or thread state).
-    context = multiprocessing.get_context("spawn")
-    results = []
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-        futures = {pool.submit(_pool_chunk, config, chunk): len(chunk) for chunk in chunks}
-        for future in as_completed(futures):
-            results += future.result()
-            bar.update(futures[future])
-    return results
-
-
-def _run_ray(config, chunks, address, bar):
-    try:
-        import ray
-    except ImportError as err:
-        raise RuntimeError(f"--ray needs the cluster extra (ray): {err}") from None
-    if not ray.is_initialized():
-        if address == "local":
-            ray.init(num_cpus=os.cpu_count(), include_dashboard=False, log_to_driver=False)
-        else:
-            ray.init(address=address, log_to_driver=False)
-    remote = ray.remote(num_cpus=1)(_pool_chunk)
-    pending = {remote.remote(config, chunk): len(chunk) for chunk in chunks}
-    results = []
-    while pending:
-        done, _ = ray.wait(list(pending), num_returns=1)
-        for ref in done:
-            results += ray.get(ref)
-            bar.update(pending.pop(ref))
-    return results
 
 
 # -- metrics and the JSON document ---------------------------------------------------------------
