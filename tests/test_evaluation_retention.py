@@ -35,7 +35,7 @@ def test_pull_points_out_of_the_socket_along_its_axis_and_ramps_up():
     assert np.allclose(retention.pull_force(env, pulling - 1, 2.0), 0.0)  # not before the pull
     first = retention.pull_force(env, pulling, 2.0)
     full = retention.pull_force(env, retention.STEPS - 1, 2.0)
-    # The port's socket axis is world +y (tasks/insertion.py): the pull is world -y.
+    # The port's socket axis is world +y (wirecraft.tasks.insertion): the pull is world -y.
     assert np.allclose(full, -2.0 * INSERTION_AXIS, atol=1e-9)
     assert 0 < np.linalg.norm(first) < 2.0  # ramped, not a step
 
@@ -65,7 +65,7 @@ def test_at_3mm_clearance_the_hanging_cable_tips_a_released_plug_out_before_any_
 
 
 def test_a_latched_plug_is_retained_at_3mm_clearance_under_the_default_pull():
-    _, env = seated_plug(0.003)  # ethernet: its latch engages once seated (tasks/insertion.py)
+    _, env = seated_plug(0.003)  # ethernet: its latch engages once seated (wirecraft.tasks.insertion)
     assert retention.check_single(env, retention.DEFAULT_FORCE) == (True, None)
     assert env.data.eq_active[env.task.retention_eqs].tolist() == [1]
 

@@ -121,7 +121,7 @@ def features_for(
 
 def cartesian_state(robot, model, data) -> np.ndarray:
     """(7,) TCP position (m) and quaternion (w, x, y, z) in the robot base frame; of q and -q,
-    the one nearer the home orientation's (``kinematics.quats_near``: w >= 0 would flip the
+    the one nearer the home orientation's (``geometry.quats_near``: w >= 0 would flip the
     sign right at the pointing-down home, where w = 0)."""
     pos, rot = robot.tcp_pose_base(model, data)
     return np.concatenate([pos, quat_near(rot, robot.home_tcp_rot)])

@@ -64,7 +64,7 @@ EPISODE_SECONDS = 8.0
 # another revision fails instead of feeding it inputs it never saw.
 #   1: the first layout.
 #   2: the TCP and plug quaternions keep the hemisphere of a fixed reference
-#      (``kinematics.quats_near``) instead of MuJoCo's largest-component sign, which flipped
+#      (``geometry.quats_near``) instead of MuJoCo's largest-component sign, which flipped
 #      q -> -q as the wrist turned.
 STATE_REVISION = 2
 

@@ -22,7 +22,7 @@ Retention.  Each family says what holds a seated plug (``retention_mechanism``: 
 ``friction`` or ``none``) and the axial pull that overcomes it (``retention_force``, N).  The
 rigid plug has no springy latch tab nor contact springs, so ``add_retention`` models the hold
 as weld equalities between the plug's tip frame and the socket's seated frame (one per
-orientation the plug seats in), inactive until a task engages one (tasks/insertion.py).
+orientation the plug seats in), inactive until a task engages one (``wirecraft.tasks.insertion``).
 """
 
 from __future__ import annotations
