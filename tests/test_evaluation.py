@@ -249,3 +249,14 @@ def test_protocol_horizon_is_the_task_variants_episode_length():
     ).payload
     assert payload["protocol"]["episode_steps"] == 2 * 480
     assert payload["episodes"][0]["steps"] == 2 * 480
+
+
+def test_episode_steps_sets_the_horizon_in_control_steps(tmp_path):
+    from wirecraft.cli import main
+
+    out = tmp_path / "run.json"
+    argv = ["eval", "--policy", "zero", "--seeds", "1", "--episodes", "1", "--quiet"]
+    assert main([*argv, "--episode-steps", "90", "--json", str(out)]) == 0
+    payload = json.loads(out.read_text())
+    assert payload["protocol"]["episode_steps"] == 90
+    assert payload["episodes"][0]["steps"] == 90

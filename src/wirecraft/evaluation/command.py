@@ -52,10 +52,20 @@ def configure(p: argparse.ArgumentParser, add_task_args) -> None:
         help="episode length (s); default: the task's (8 s; routing 8 s per clip)",
     )
     p.add_argument(
+        "--episode-steps",
+        type=number(1, MAX_SECONDS * 60, integer=True),
+        default=None,
+        help="episode length in control steps (60 per second), instead of --episode-seconds "
+        "(the reference evaluates imitation policies over 800)",
+    )
+    from wirecraft.tasks import TASKS
+
+    pulling = ", ".join(n for n in TASKS if TASKS.get(n).metrics.pulls)
+    p.add_argument(
         "--retain-force",
         type=number(0, 1000),
         default=None,
-        help=f"insertion only: retention check, pull on the seated plug, 0 to 1000 N "
+        help=f"{pulling} only: the retention check's pull on the seated part, 0 to 1000 N "
         f"(default: {DEFAULT_FORCE:g})",
     )
     where = p.add_mutually_exclusive_group()
@@ -196,7 +206,7 @@ def print_summary(payload: dict, seconds: float) -> None:
 
 def run(args, task_kwargs, write_json) -> int:
     from wirecraft.cli import only_with, usage_error
-    from wirecraft.envs.env import steps_per_frame
+    from wirecraft.envs.env import CONTROL_HZ, steps_per_frame
     from wirecraft.evaluation import report as report_mod
     from wirecraft.evaluation import sweep as sweep_mod
     from wirecraft.evaluation.policies import BUILTIN_POLICIES as BUILT_IN_POLICIES
@@ -223,6 +233,10 @@ def run(args, task_kwargs, write_json) -> int:
         )
     if not (args.video or args.report):
         only_with(args, "--video or --report", "--video-episodes")
+    episode_seconds = args.episode_seconds
+    if args.episode_steps is not None:
+        only_with(args, "no --episode-steps (give one length)", "--episode-seconds")
+        episode_seconds = args.episode_steps / CONTROL_HZ
     if args.policy in BUILT_IN_POLICIES:
         only_with(args, "a learned policy (an RL run or LeRobot directory)", "--device")
     elif not Path(args.policy).exists():
@@ -264,7 +278,7 @@ def run(args, task_kwargs, write_json) -> int:
                 episodes=args.episodes,
                 workers=args.workers,
                 seed=held_out,
-                episode_seconds=args.episode_seconds,
+                episode_seconds=episode_seconds,
                 retain_force=retain_force,
                 batch=args.batch,
                 ray_address=args.ray,
@@ -293,7 +307,7 @@ def run(args, task_kwargs, write_json) -> int:
         episodes=args.episodes,
         workers=args.workers,
         seed=args.seed,
-        episode_seconds=args.episode_seconds,
+        episode_seconds=episode_seconds,
         retain_force=retain_force,
         batch=args.batch,
         ray_address=args.ray,
