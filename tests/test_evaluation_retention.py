@@ -65,7 +65,9 @@ def test_at_3mm_clearance_the_hanging_cable_tips_a_released_plug_out_before_any_
 
 
 def test_a_latched_plug_is_retained_at_3mm_clearance_under_the_default_pull():
-    _, env = seated_plug(0.003)  # ethernet: its latch engages once seated (wirecraft.tasks.insertion)
+    _, env = seated_plug(
+        0.003
+    )  # ethernet: its latch engages once seated (wirecraft.tasks.insertion)
     assert retention.check_single(env, retention.DEFAULT_FORCE) == (True, None)
     assert env.data.eq_active[env.task.retention_eqs].tolist() == [1]
 

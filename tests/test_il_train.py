@@ -145,11 +145,14 @@ def test_eval_sweeps_the_checkpoints(run, tmp_path):
     result = tmp_path / "sweep.json"
     _run(
         [BIN / "wirecraft", "eval", "--policy", out, "--checkpoints", "all", "--json", result]
-        + common,
+        + ["--curve", tmp_path / "curve.png", *common],
         cwd=tmp_path,
     )
     rows = json.loads(result.read_text())["checkpoints"]
     assert [r["step"] for r in rows] == [2, 4]
+    from PIL import Image
+
+    assert Image.open(tmp_path / "curve.png").size[0] > 300  # the learning curve
     for r in rows:
         assert set(r["metrics"]) == {"reach_success", "insert_success", "success"}
         assert set(r["metrics"]["success"]) == {"mean", "std"}
@@ -204,6 +207,7 @@ def test_bad_sweeps_are_refused(run, tmp_path, capsys):
     _bad(["eval", "--policy", str(out), "--checkpoints", "7"], capsys, "--checkpoints")
     _bad(["eval", "--policy", str(out), "--select", "validation"], capsys, "--seed")
     _bad(["eval", "--policy", "scripted", "--checkpoints", "all"], capsys, "--checkpoints")
+    _bad(["eval", "--policy", "scripted", "--curve", "c.png"], capsys, "--curve")
     _bad(["eval", "--policy", str(out), "--label", "x"], capsys, "--label")
 
 

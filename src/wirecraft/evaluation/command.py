@@ -143,6 +143,14 @@ def configure(p: argparse.ArgumentParser, add_task_args) -> None:
         "--checkpoints) by SR reach on the evaluation seeds; validation = the best on the "
         "--seed list, scored on the public list",
     )
+    p.add_argument(
+        "--curve",
+        metavar="PNG",
+        type=suffixed(".png"),
+        default=None,
+        help="with --policy RUN: plot the sweep's learning curve (SR reach / insert against "
+        "training steps)",
+    )
 
 
 def parse_video_spec(spec: str) -> str | list[tuple[int, int]]:
@@ -220,6 +228,7 @@ def run(args, task_kwargs, write_json) -> int:
     if not run_dir:
         only_with(args, "--policy RUN (an imitation run folder with checkpoints/)", "--checkpoints")
         only_with(args, "--policy RUN (an imitation run folder with checkpoints/)", "--select")
+        only_with(args, "--policy RUN (an imitation run folder with checkpoints/)", "--curve")
     else:
         only_with(
             args, "one checkpoint (not a sweep)", "--traces", "--video", "--report", "--label"
@@ -297,6 +306,8 @@ def run(args, task_kwargs, write_json) -> int:
             episodes_per_seed=args.episodes,
         )
         sweep_mod.print_sweep(result)
+        if args.curve:
+            print(f"wrote {sweep_mod.plot_curve(result, args.curve)}")
         print(f"  ({time.time() - start:.0f} s)")
         write_json(args.json, result)
         return 0

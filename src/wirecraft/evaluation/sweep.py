@@ -128,6 +128,40 @@ def sweep(evaluate, checkpoints, select: str | None, seed: int | None) -> dict:
     return {"checkpoints": rows, "selection": selection}
 
 
+CURVE_TITLES = {"reach_success": "SR reach", "insert_success": "SR insert", "success": "success"}
+
+
+def plot_curve(result: dict, path: str | Path, title: str = "") -> Path:
+    """Learning curve of a sweep: each metric (mean +/- std over seeds) against training
+    steps, one point per checkpoint (the seeds it was scored on in the legend)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = sorted(result["checkpoints"], key=lambda r: r["step"])
+    steps = [r["step"] for r in rows]
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    names = [n for n in CURVE_TITLES if n in rows[0]["metrics"]]
+    if "insert_success" in names:
+        names.remove("success")  # the same as SR insert for insertion
+    for name in names:
+        means = [100 * (r["metrics"][name]["mean"] or 0.0) for r in rows]
+        stds = [100 * (r["metrics"][name]["std"] or 0.0) for r in rows]
+        ax.errorbar(steps, means, yerr=stds, marker="o", capsize=3, label=CURVE_TITLES[name])
+    ax.set_xlabel("training steps")
+    ax.set_ylabel("% of episodes (mean +/- std over seeds)")
+    ax.set_ylim(-2, 102)
+    ax.grid(alpha=0.3)
+    ax.legend(title=rows[0]["seeds"], fontsize=8, title_fontsize=8)
+    ax.set_title(title or str(result.get("policy", "")), fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def _pct(value) -> str:
     return "    -" if value is None else f"{100 * value:5.1f}"
 
