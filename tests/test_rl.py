@@ -405,6 +405,23 @@ def test_ppo_trains_saves_loads_and_resumes(tmp_path):
     dataset = load_dataset(tmp_path / "data")
     assert dataset.num_episodes == 1 and dataset.num_frames == 3
     assert {int(dataset[i][SOURCE_KEY]) for i in range(3)} == {SOURCES.index("rl")}
+    # the same from the command line: wirecraft collect --policy RUN
+    from wirecraft.cli import main as cli_main
+
+    argv = ["collect", "--policy", str(run_dir), "--episodes", "2", "--image-size", "32"]
+    assert cli_main([*argv, "--seed", "4", "--out", str(tmp_path / "cli")]) == 0
+    dataset = load_dataset(tmp_path / "cli")
+    assert dataset.num_episodes == 2
+    assert {int(dataset[i][SOURCE_KEY]) for i in range(6)} == {SOURCES.index("rl")}
+    for refused, flag in (
+        (["--task", "routing"], "--task"),
+        (["--connector", "usb_a"], "--connector"),
+        (["--workers", "2"], "--workers"),
+        (["--resume"], "--resume"),
+    ):
+        assert cli_main([*argv, *refused, "--out", str(tmp_path / "no")]) == 2, flag
+        assert not (tmp_path / "no").exists()
+    assert cli_main(["collect", "--policy", str(tmp_path), "--out", str(tmp_path / "no")]) == 2
 
     with pytest.raises(ValueError, match="--resume"):
         train("ppo", "insertion", None, run_dir, steps=96, progress=False)

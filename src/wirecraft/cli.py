@@ -295,7 +295,9 @@ def _bench_args(p):
         default=None,
         help="wires and envs suites: wire models (default: all; envs: articulated)",
     )
-    p.add_argument("--task", nargs="+", default=None, help="envs suite: tasks (default: insertion)")
+    p.add_argument(
+        "--task", nargs="+", default=None, help="envs suite: tasks (default: the first family)"
+    )
     p.add_argument(
         "--num-envs",
         type=int_list(1, MAX_ENVS),
@@ -434,6 +436,7 @@ def cmd_demo(args) -> int:
 # -- collect ------------------------------------------------------------------------------------
 def _collect_args(p):
     add_task_args(p)
+    p.set_defaults(task=None)  # None: the first family (--policy: the run's own)
     p.add_argument(
         "--episodes",
         type=number(1, 10**6, integer=True),
@@ -470,8 +473,8 @@ def _collect_args(p):
     p.add_argument(
         "--success-hold",
         type=number(0, 60),
-        default=0.5,
-        help="end once success held this long, 0 to 60 s (0: never early)",
+        default=None,
+        help="end once success held this long, 0 to 60 s (0: never early; default 0.5)",
     )
     p.add_argument(
         "--vcodec", default="h264", choices=("h264", "libsvtav1"), help="video codec (AV1: svt)"
@@ -479,8 +482,8 @@ def _collect_args(p):
     p.add_argument(
         "--commit-every",
         type=number(1, 10**6, integer=True),
-        default=10,
-        help="episodes per durable commit",
+        default=None,
+        help="episodes per durable commit (default 10)",
     )
     p.add_argument(
         "--max-attempts",
@@ -489,10 +492,40 @@ def _collect_args(p):
         help="default: 2 * episodes + 10",
     )
     p.add_argument("--json", metavar="PATH", type=output_file, help="write the report as JSON")
+    p.add_argument(
+        "--policy",
+        metavar="RUN",
+        default=None,
+        help="record a trained RL policy's episodes instead (an RL run directory or checkpoint; "
+        "source rl; its own task and environment; episode k reset with seed SEED + k; every "
+        "episode kept)",
+    )
 
 
-@command("collect", "write scripted demonstrations as a LeRobot v3 dataset", _collect_args)
+# collect flags that apply to scripted demonstrations only (not to --policy rollouts).
+SCRIPTED_ONLY = (
+    "--workers",
+    "--ray",
+    "--keep-failures",
+    "--resume",
+    "--success-hold",
+    "--commit-every",
+    "--max-attempts",
+)
+
+
+@command(
+    "collect",
+    "write scripted demonstrations (or a trained RL policy's rollouts) as a LeRobot v3 dataset",
+    _collect_args,
+)
 def cmd_collect(args) -> int:
+    if args.policy is not None:
+        return collect_rollouts(args)
+    if args.task is None:
+        from wirecraft.tasks import default_family
+
+        args.task = default_family()
     from wirecraft.datasets.collect import (
         DEFAULT_IMAGE_SIZE,
         CollectSettings,
@@ -520,7 +553,7 @@ def cmd_collect(args) -> int:
         fps=args.fps,
         seed=args.seed,
         keep_failures=args.keep_failures,
-        success_hold_s=args.success_hold,
+        success_hold_s=0.5 if args.success_hold is None else args.success_hold,
         vcodec=args.vcodec,
     )
     report = collect(
@@ -530,7 +563,7 @@ def cmd_collect(args) -> int:
         workers=2 if args.workers is None else args.workers,
         ray_address=args.ray,
         resume=args.resume,
-        commit_every=args.commit_every,
+        commit_every=args.commit_every or 10,
         max_attempts=args.max_attempts,
     )
     for line in summary_lines(report):
@@ -539,6 +572,38 @@ def cmd_collect(args) -> int:
     if report.interrupted:
         return 128 + int(getattr(__import__("signal"), report.interrupted))
     return 1 if report.gave_up else 0
+
+
+def collect_rollouts(args) -> int:
+    """``wirecraft collect --policy RUN``: the policy's episodes in the shared schema."""
+    from wirecraft.rl.record import record_rollouts
+
+    only_with(args, "scripted demonstrations (without --policy)", *SCRIPTED_ONLY)
+    only_with(args, "scripted demonstrations (the run keeps its own task)", "--task")
+    flags = {flag: spec for flag, spec in task_flags().items() if flag != "--image-size"}
+    only_with(args, "scripted demonstrations (the run keeps its environment)", *flags)
+    if args.vcodec != "h264":
+        raise usage_error("--vcodec", "applies only to scripted demonstrations")
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise usage_error("--out", f"{out} exists and is not empty")
+    try:
+        written = record_rollouts(
+            args.policy,
+            out,
+            args.episodes,
+            seed=args.seed,
+            fps=args.fps,
+            image_size=args.image_size,
+        )
+    except ValueError as err:
+        raise usage_error("--policy", str(err)) from None
+    print(
+        f"dataset {out}: {written['episodes']} episodes of {args.policy} ({written['frames']} "
+        f"frames, {written['successes']} successful), source rl"
+    )
+    write_json(args.json, written)
+    return 0
 
 
 def check_resume(out: str, marker: str, kind: str) -> None:
