@@ -204,4 +204,7 @@ def frame_images(env, renderer) -> dict[str, np.ndarray]:
     """Camera name (``schema.CAMERAS``) -> the (H, W, 3) uint8 image of the current state."""
     robot = env.robot
     names = {"side": robot.side_camera, "wrist": robot.wrist_camera}
-    return {camera: renderer.render(env.data, names[camera]) for camera in schema.CAMERAS}
+    return {
+        camera: env.postprocess_image(renderer.render(env.data, names[camera]), names[camera])
+        for camera in schema.CAMERAS
+    }

@@ -6,6 +6,10 @@ control steps (the default; routing gets 8 s per clip, see ``Task.episode_second
 ``episode_seconds=`` or ``max_episode_steps=`` (also ``gymnasium.make``'s) sets the length:
 ``max_steps``, which ``env.spec.max_episode_steps`` reports.
 
+Cameras: ``camera_config=`` (a ``wirecraft.cameras.CameraConfig``, its dict, or a TOML path)
+sets the cell's camera poses, fields of view and far clip, and post-processes every rendered
+RGB image with its exposure gain and sensor noise (``postprocess_image``).
+
 Divergence: after every control step the state is checked (finite; linear and angular speeds
 below ``MAX_LINEAR_SPEED`` and ``MAX_ANGULAR_SPEED``); a diverged step is rolled back to the
 state before it, the episode ends with ``truncated=True`` and ``info["diverged"] = True``, and
@@ -203,6 +207,7 @@ class WireCraftEnv(gym.Env):
         max_episode_steps: int | None = None,
         wire_config: WireConfig | None = None,
         diagnostics: bool = True,
+        camera_config=None,
         **task_kwargs: Any,
     ) -> None:
         task_cls = TASKS.get(task)
@@ -234,6 +239,9 @@ class WireCraftEnv(gym.Env):
             raise ValueError(
                 f"WireCraftEnv.wire_config must be a WireConfig or None, got {wire_config!r}"
             )
+        from wirecraft.cameras import CameraConfig
+
+        self.camera_config = CameraConfig.of(camera_config)
         weights = task_kwargs.pop("weights", None)
         self.task = task_cls(task_cls.Options.build(task_kwargs), weights)
         self.robot_name, self.wire_name, self.control_name = robot, wire, control
@@ -255,7 +263,11 @@ class WireCraftEnv(gym.Env):
         _add_wrist_sensor(spec, self.robot.hand_body)
         self.task.build_scene(spec, wire_config or WireConfig(model=wire))
         self.task.add_contact_sensors(spec, self.robot)
+        if self.camera_config is not None:
+            self.camera_config.apply_to_spec(spec, self.robot.side_camera, self.robot.wrist_camera)
         self.model = compile_spec(spec)
+        if self.camera_config is not None:
+            self.camera_config.apply_to_model(self.model)
         # MuJoCo would otherwise reset a diverged simulation silently; we detect and report it.
         self.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         self.data = mujoco.MjData(self.model)
@@ -536,9 +548,19 @@ class WireCraftEnv(gym.Env):
             from wirecraft.render import FastRenderer
 
             self._renderer = FastRenderer(self.model, self.image_size, self.image_size)
-        rgb = self._renderer.render(self.data, camera)
+        rgb = self.postprocess_image(self._renderer.render(self.data, camera), camera)
         dep = self._renderer.render_depth(self.data, camera) if depth else None
         return rgb, dep
+
+    def postprocess_image(self, rgb: np.ndarray, camera: str) -> np.ndarray:
+        """A rendered RGB image of ``camera`` as the cell's sensor gives it (``camera_config``:
+        exposure gain and noise; unchanged without one).  Its noise depends only on the
+        episode's reset seed, the control step and the camera."""
+        if self.camera_config is None or not self.camera_config.changes_images:
+            return rgb
+        index = 0 if camera == self.robot.side_camera else 1
+        seed = max(int(self.np_random_seed), 0)
+        return self.camera_config.postprocess(rgb, seed, self.elapsed_steps, index)
 
     def render(self):
         if self.render_mode == "rgb_array":
