@@ -646,6 +646,52 @@ def cmd_mix(args) -> int:
     return 0
 
 
+# -- import -------------------------------------------------------------------------------------
+def _import_args(p):
+    p.add_argument(
+        "--from", dest="source_dir", required=True, metavar="DIR", help="the LeRobot v3 dataset"
+    )
+    p.add_argument(
+        "--source", required=True, choices=("real", "teleop"), help="where its data came from"
+    )
+    p.add_argument("--robot", required=True, help="the robot it was recorded on (e.g. ur5)")
+    p.add_argument(
+        "--map",
+        required=True,
+        metavar="MAP.toml",
+        help="which foreign features hold the joints, gripper, cameras, in which units "
+        "(docs/datasets.md)",
+    )
+    p.add_argument("--out", required=True, help="the new dataset (must not exist, or be empty)")
+    p.add_argument(
+        "--task", metavar="FAMILY", help="task family for the success flags (default: the map's)"
+    )
+    p.add_argument("--json", metavar="PATH", type=output_file, help="write the record as JSON")
+
+
+@command(
+    "import",
+    "convert a LeRobot dataset recorded elsewhere (real robot, teleoperation) to this schema",
+    _import_args,
+)
+def cmd_import(args) -> int:
+    from wirecraft.datasets.importer import import_dataset, load_map, summary_lines
+
+    record = import_dataset(
+        args.source_dir,
+        args.out,
+        source=args.source,
+        robot=args.robot,
+        mapping=load_map(args.map),
+        task=args.task,
+        map_file=args.map,
+    )
+    for line in summary_lines(record, args.out):
+        print(line)
+    write_json(args.json, record)
+    return 0
+
+
 # -- train --------------------------------------------------------------------------------------
 RL_ALGORITHMS = ("ppo", "sacfd", "vision-ppo")
 IL_ALGORITHMS = ("act", "diffusion", "smolvla", "pi05")  # wirecraft.il.train.ALGORITHMS

@@ -4,7 +4,8 @@
 - ``recorder``: ``Episode`` and ``EpisodeRecorder`` (a running environment -> frames);
 - ``writer``: ``EpisodeWriter`` (lerobot's create / add_frame / save_episode / finalize, with
   commits that survive a hard kill) and ``load_dataset``;
-- ``collect``: scripted-expert demonstrations (``wirecraft collect``).
+- ``collect``: scripted-expert demonstrations (``wirecraft collect``);
+- ``importer``: a LeRobot dataset recorded elsewhere, converted (``wirecraft import``).
 
 lerobot is imported only when a dataset is written or read.
 """

@@ -10,7 +10,8 @@ LeRobot v3 features (``features_for``); every feature is documented in docs/data
   ``(qw, qx, qy, qz)`` (MuJoCo's order, scalar first) in the robot base frame;
 - ``observation.images.cam_side`` / ``observation.images.cam_wrist``: RGB videos (H, W, 3);
 - ``action.env`` (steps_per_frame * env action dim,) float64: the actions passed to
-  ``env.step`` during the frame's control steps, in order (exact replay);
+  ``env.step`` during the frame's control steps, in order (exact replay); NaN where no
+  environment was stepped (datasets converted by ``importer``);
 - the task's success flags (bool, one per frame): its family's ``metrics.success_flags``
   (``success`` first; insertion adds ``reach_success`` and ``insert_success``);
 - ``source`` int64: index into ``SOURCES``; ``seed`` int64: the episode's reset seed (-1: none).
