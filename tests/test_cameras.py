@@ -137,3 +137,25 @@ def test_the_noise_works_as_a_dataset_transform(quick_dataset):
     assert a.shape == b.shape and b.dtype == torch.float32
     assert 0.0 <= float(b.min()) and float(b.max()) <= 1.0
     assert float((a - b).abs().mean()) > 0.005
+
+
+def test_the_command_line_previews_a_cell_and_records_with_it(tmp_path, capsys):
+    import json
+
+    from PIL import Image
+
+    from wirecraft.cli import main
+
+    path = tmp_path / "cell.toml"
+    path.write_text(CELL)
+    png = tmp_path / "preview.png"
+    assert main(["view", "--camera-config", str(path), "--width", "48", "--out", str(png)]) == 0
+    assert Image.open(png).size == (96, 96)  # default | configured, side over wrist
+    (tmp_path / "bad.toml").write_text("[noise]\nread = -1\n")
+    assert main(["view", "--camera-config", str(tmp_path / "bad.toml")]) == 2
+    assert "read" in capsys.readouterr().err
+    out = tmp_path / "ds"
+    argv = ["collect", "--episodes", "1", "--image-size", "32", "--fps", "10", "--workers", "0"]
+    assert main([*argv, "--camera-config", str(path), "--out", str(out)]) == 0
+    settings = json.loads((out / "meta" / "wirecraft_collect.json").read_text())["settings"]
+    assert CameraConfig.of(settings["env_kwargs"]["camera_config"]) == CameraConfig.load(path)

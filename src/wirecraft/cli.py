@@ -65,6 +65,8 @@ ENV_FLAGS: dict[str, tuple[str, Callable, Callable[[], list[str]] | None]] = {
     "--wire": ("wire", str, lambda: _registry_names("wirecraft.assets.wires", "WIRE_MODELS")),
     "--control": ("control", str, lambda: _registry_names("wirecraft.control", "CONTROLLERS")),
     "--image-size": ("image_size", number(16, min(FRAMEBUFFER), integer=True), None),
+    # a cell's cameras and sensor noise: a TOML file (wirecraft.cameras), recorded as its dict
+    "--camera-config": ("camera_config", lambda text: camera_config_file(text), None),
 }
 
 
@@ -182,7 +184,18 @@ def cmd_list(args) -> int:
 
 # -- view ---------------------------------------------------------------------------------------
 def _view_args(p):
-    p.add_argument("--scene", default="wires", help="scene to show (see `wirecraft list`)")
+    p.add_argument(
+        "--scene", default=None, help="scene to show (see `wirecraft list`; default: wires)"
+    )
+    p.add_argument(
+        "--camera-config",
+        metavar="CELL.toml",
+        type=camera_config_file,
+        default=None,
+        help="preview a cell's cameras: the default and the configured side and wrist images "
+        "of a reset task scene, side by side, written to --out (docs/tasks.md, Rendering)",
+    )
+    p.add_argument("--task", default=None, help="with --camera-config: the task scene")
     p.add_argument("--headless", action="store_true", help="render an image instead of a window")
     p.add_argument(
         "--out",
@@ -209,7 +222,10 @@ def cmd_view(args) -> int:
     from wirecraft.scene import compile_spec
     from wirecraft.showcase import SCENES
 
-    build = SCENES.get(args.scene)
+    if args.camera_config is not None:
+        return camera_preview(args)
+    only_with(args, "--camera-config", "--task")
+    build = SCENES.get(args.scene or "wires")
     if not args.headless:
         only_with(args, "--headless", "--out", "--settle", "--width", "--height")
         if not os.environ.get("DISPLAY") and sys.platform.startswith("linux"):
@@ -233,6 +249,51 @@ def cmd_view(args) -> int:
         save_png(image, tmp)
     print(f"wrote {out}")
     return 0
+
+
+def camera_preview(args) -> int:
+    """``wirecraft view --camera-config F``: default | configured, side row over wrist row."""
+    import numpy as np
+
+    import wirecraft
+    from wirecraft.render import save_png
+
+    only_with(args, "the scene viewer (without --camera-config)", "--scene")
+    only_with(args, "a scene (--settle)", "--settle")
+    task = args.task
+    if task is None:
+        from wirecraft.tasks import default_family
+
+        task = default_family()
+    try:
+        task = wirecraft.family_of(task)
+    except ValueError as err:
+        raise usage_error("--task", str(err)) from None
+    size = min(args.width or 320, args.height or 320)
+    images = []
+    for config in (None, args.camera_config):
+        env = wirecraft.make(task, obs_mode="rgb", image_size=size, camera_config=config)
+        obs, _ = env.reset(seed=0)
+        images.append((obs["rgb_side"], obs["rgb_wrist"]))
+        env.close()
+    grid = np.concatenate(
+        [np.concatenate([images[0][k], images[1][k]], axis=1) for k in (0, 1)], axis=0
+    )
+    out = args.out or check_path("--out", "wirecraft_cameras.png")
+    with atomic_path(out) as tmp:
+        save_png(grid, tmp)
+    print(f"wrote {out}: default | configured; side (top), wrist (bottom); {size} px each")
+    return 0
+
+
+def camera_config_file(text: str) -> dict:
+    """An argparse ``type=``: a camera config TOML file, as the dict environments take."""
+    from wirecraft.cameras import CameraConfig
+
+    try:
+        return CameraConfig.load(text).as_dict()
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 # -- export-stl ---------------------------------------------------------------------------------
