@@ -11,8 +11,10 @@ PYTHON ?= $(shell for c in python3.12 "$$(pyenv root 2>/dev/null)/versions/3.12.
 GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1
 # Headless Chromium renders the evaluation's HTML report in a test (driven by playwright).
 BROWSER_PACKAGES := chromium
+# A virtual display and key sender for the teleoperation window test (tests/test_teleop.py).
+WINDOW_PACKAGES := xvfb xdotool x11-apps
 
-.PHONY: demo test bench lint venv install sysdeps browser clean
+.PHONY: demo test bench lint venv install sysdeps browser window clean
 
 $(PY):
 	@if [ -z "$(PYTHON)" ]; then \
@@ -60,10 +62,21 @@ browser:
 	  fi; \
 	fi
 
+window:
+	@if ! command -v Xvfb >/dev/null || ! command -v xdotool >/dev/null; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing a virtual display for the teleoperation test: $(WINDOW_PACKAGES)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(WINDOW_PACKAGES) >/dev/null; \
+	  else \
+	    echo "warning: Xvfb or xdotool not found; the teleoperation window test will be skipped." >&2; \
+	    echo "         install them, e.g. 'sudo apt-get install $(WINDOW_PACKAGES)'" >&2; \
+	  fi; \
+	fi
+
 demo: install sysdeps
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/wirecraft demo --out out/demo
 
-test: install sysdeps browser
+test: install sysdeps browser window
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -n 2 -q
 
 bench: install

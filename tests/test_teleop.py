@@ -536,3 +536,10 @@ def test_keyboard_drives_the_robot_in_a_real_window(tmp_path, xvfb):
     again = dataset_frames(replayed)
     for key in frames:
         assert np.array_equal(frames[key], again[key]), key
+
+
+def test_the_wirecraft_program_runs_teleop(capsys):
+    from wirecraft.cli import main
+
+    assert main(["teleop", "--device", "replay", "--record", "unused"]) == 2
+    assert "--commands" in capsys.readouterr().err

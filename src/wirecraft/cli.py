@@ -971,6 +971,19 @@ def cmd_eval(args) -> int:
     return run(args, task_kwargs, write_json)
 
 
+def _teleop_args(p):
+    from wirecraft.teleop.command import configure
+
+    configure(p, add_task_args)
+
+
+@command("teleop", "drive the robot by hand and record the saved episodes", _teleop_args)
+def cmd_teleop(args) -> int:
+    from wirecraft.teleop.command import run
+
+    return run(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="wirecraft",

@@ -39,7 +39,7 @@ SHARE_TOLERANCE = 0.01  # largest |achieved - target| frame share accepted witho
 DEFAULT_MAX_COPIES = 100
 # Collection settings that differ between datasets of the same task without changing what a
 # policy trained on them sees (the seeds, whether failures were kept, the video codec).
-FREE_SETTINGS = ("seed", "keep_failures", "vcodec")
+FREE_SETTINGS = ("seed", "keep_failures", "vcodec", "success_hold_s")
 SEMANTICS = (
     "weight w_i: input i makes up w_i / sum(w) of the frames lerobot-train samples, realised by "
     "copying its episodes c_i times: its achieved share is c_i * frames_i / sum_j(c_j * frames_j)"
