@@ -977,7 +977,12 @@ def _teleop_args(p):
     configure(p, add_task_args)
 
 
-@command("teleop", "drive the robot by hand and record the saved episodes", _teleop_args)
+@command(
+    "teleop",
+    "drive the robot by hand in MuJoCo's viewer (keyboard, SpaceMouse, game pad) or replay a "
+    "command stream, and record the saved episodes as a LeRobot dataset (source teleop)",
+    _teleop_args,
+)
 def cmd_teleop(args) -> int:
     from wirecraft.teleop.command import run
 

@@ -174,6 +174,30 @@ def write_text(path: str | os.PathLike, text: str) -> None:
 
 
 @contextlib.contextmanager
+def folder_built_beside(out: str | os.PathLike, job: str, *, replace_empty: bool = False):
+    """A fresh temporary folder beside ``out`` to build it in: renamed to ``out`` when the block
+    succeeds, removed when it fails, so ``out`` is never half-written.  ``out`` must still be
+    absent at the end (with ``replace_empty``: absent or an empty folder); otherwise a
+    ValueError naming ``--out`` says it appeared while ``job`` ran."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.{job}-{os.getpid()}.tmp")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    try:
+        yield tmp
+        taken = out.exists() or out.is_symlink()
+        if taken and replace_empty and out.is_dir() and not any(out.iterdir()):
+            taken = False
+        if taken:
+            raise ValueError(f"--out: {out} appeared while {job} ran; name a new folder")
+        os.rename(tmp, out)  # replaces an empty folder
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
 def new_folder(path: str | os.PathLike):
     """Remove ``path`` again if this block created it and then failed (a failed start leaves
     nothing that blocks the rerun)."""

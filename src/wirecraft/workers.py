@@ -15,9 +15,42 @@ a terminal reaches only the main process, which decides.
 from __future__ import annotations
 
 import signal
+import sys
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
+
+
+class StopOnSignal:
+    """SIGINT / SIGTERM set ``stop`` (the signal's name; the main loop ends cleanly) and print
+    ``on_stop``; a second one interrupts at once.  Installed only in the main thread."""
+
+    def __init__(self, on_stop: str) -> None:
+        self.on_stop = on_stop
+        self.stop: str | None = None
+        self._previous: dict = {}
+
+    def _handle(self, signum, frame) -> None:
+        if self.stop is not None:
+            raise KeyboardInterrupt
+        self.stop = signal.Signals(signum).name
+        print(
+            f"\n{self.stop}: {self.on_stop} (send it again to stop at once)",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    def __enter__(self) -> StopOnSignal:
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
 
 
 def _ignore_sigint() -> None:

@@ -29,8 +29,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import signal
-import sys
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -41,7 +39,7 @@ import numpy as np
 from wirecraft.datasets import schema
 from wirecraft.datasets.recorder import Episode, EpisodeRecorder
 from wirecraft.torch_threads import DEFAULT_TORCH_THREADS, set_torch_threads
-from wirecraft.workers import open_workers
+from wirecraft.workers import StopOnSignal, open_workers
 
 SETTINGS_FILE = "meta/wirecraft_collect.json"
 DEFAULT_IMAGE_SIZE = 224
@@ -236,38 +234,6 @@ def run_episode(settings: CollectSettings | dict, attempt: int) -> Episode:
     )
     episode.success = bool(episode.success and not info["diverged"])
     return episode
-
-
-# -- signals ------------------------------------------------------------------------------
-class _StopOnSignal:
-    """SIGINT / SIGTERM set ``stop`` (the main loop ends cleanly); a second one interrupts."""
-
-    def __init__(self) -> None:
-        self.stop = None  # the signal's name once one arrived
-        self._previous = {}
-
-    def _handle(self, signum, frame) -> None:
-        if self.stop is not None:
-            raise KeyboardInterrupt
-        self.stop = signal.Signals(signum).name
-        print(
-            f"\n{self.stop}: finishing the episode being written, then saving the dataset "
-            "(send it again to stop at once)",
-            file=sys.stderr,
-            flush=True,
-        )
-
-    def __enter__(self) -> _StopOnSignal:
-        import threading
-
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._previous[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def __exit__(self, *exc) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
 
 
 # -- the collection ------------------------------------------------------------------------
@@ -500,7 +466,9 @@ def collect(
             submitted += 1
 
     try:
-        with _StopOnSignal() as stopper:
+        with StopOnSignal(
+            "finishing the episode being written, then saving the dataset"
+        ) as stopper:
             if report.saved < episodes and next_attempt < max_attempts:
                 executor = open_workers(workers, ray_address or None)
                 submit_window()

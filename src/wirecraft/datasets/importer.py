@@ -57,7 +57,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -798,7 +797,7 @@ def import_dataset(
     ``meta/wirecraft_import.json``.  ``task``: the task family (overrides the map's ``task``);
     ``map_file``: where the map came from (recorded only)."""
     from wirecraft.assets.robots import ROBOTS
-    from wirecraft.cli_args import _writable_parent
+    from wirecraft.cli_args import _writable_parent, folder_built_beside
     from wirecraft.provenance import provenance
 
     if source not in IMPORT_SOURCES:
@@ -916,11 +915,7 @@ def import_dataset(
     from wirecraft.datasets.writer import EpisodeWriter, write_json_atomic
 
     fk = _fk_model(robot)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.import-{os.getpid()}.tmp")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    try:
+    with folder_built_beside(out, "import", replace_empty=True) as tmp:
         writer = EpisodeWriter.create(
             tmp, features, plan.fps, robot_type=robot, commit_every=len(kept) + 1
         )
@@ -960,12 +955,6 @@ def import_dataset(
             bar.close()
         writer.close()
         write_json_atomic(tmp / IMPORT_FILE, record)
-        if out.exists() and (not out.is_dir() or any(out.iterdir())):
-            raise usage("--out", f"{out} was written to while importing; name a new folder")
-        os.rename(tmp, out)  # replaces an empty folder
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
     return record
 
 

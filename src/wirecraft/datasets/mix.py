@@ -25,7 +25,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 from pathlib import Path
 
 from wirecraft.datasets import schema
@@ -294,7 +293,7 @@ def mix(
     """Merge ``inputs`` ((folder, weight) pairs, at least two) into a new dataset at ``out``;
     returns the record written to ``meta/wirecraft_mix.json``.  Every check happens before
     anything is written; a failure leaves nothing at ``out``."""
-    from wirecraft.cli_args import _writable_parent
+    from wirecraft.cli_args import _writable_parent, folder_built_beside
     from wirecraft.provenance import provenance
 
     out = Path(out)
@@ -370,9 +369,7 @@ def mix(
     from wirecraft.datasets.writer import quiet_writing, write_json_atomic
 
     quiet_writing()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.mix-{os.getpid()}.tmp")
-    try:
+    with folder_built_beside(out, "mix") as tmp:
         roots = [Path(x["path"]) for x, c in zip(read, copies, strict=True) for _ in range(c)]
         aggregate_datasets([REPO_ID] * len(roots), REPO_ID, roots=roots, aggr_root=tmp)
         info = _read_json(tmp / INFO_FILE, "--out")
@@ -388,12 +385,6 @@ def mix(
         if collect is not None:
             write_json_atomic(tmp / COLLECT_FILE, collect)
         write_json_atomic(tmp / MIX_FILE, record)
-        if out.exists():
-            raise usage("--out", f"{out} appeared while mixing; name a new folder")
-        os.rename(tmp, out)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
     return record
 
 

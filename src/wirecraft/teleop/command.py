@@ -5,10 +5,6 @@ from __future__ import annotations
 
 import argparse
 
-DESCRIPTION = (
-    "drive the robot by hand in MuJoCo's viewer (keyboard, SpaceMouse, game pad) or replay a "
-    "command stream, and record the saved episodes as a LeRobot dataset (source teleop)"
-)
 DEFAULT_FPS = 30
 DEFAULT_SEED = 0
 

@@ -41,8 +41,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -51,6 +49,7 @@ import numpy as np
 
 from wirecraft.datasets import schema
 from wirecraft.datasets.recorder import EpisodeRecorder
+from wirecraft.workers import StopOnSignal
 
 DEFAULT_EPISODE_SECONDS = 60.0  # people need longer than the 8 s scripted episodes
 SPEEDS = (0.05, 0.1, 0.15, 0.25, 0.4, 0.6, 1.0)
@@ -112,37 +111,6 @@ class TeleopReport:
         if self.dropped_unsaved:
             lines.append(f"the episode under way ({self.dropped_unsaved} frames) was not saved")
         return lines
-
-
-class _StopOnSignal:
-    """SIGINT / SIGTERM set ``stop``; a second one interrupts at once."""
-
-    def __init__(self) -> None:
-        self.stop: str | None = None
-        self._previous: dict = {}
-
-    def _handle(self, signum, frame) -> None:
-        if self.stop is not None:
-            raise KeyboardInterrupt
-        self.stop = signal.Signals(signum).name
-        print(
-            f"\n{self.stop}: ending the session (the episode under way is not saved; send it "
-            "again to stop at once)",
-            file=sys.stderr,
-            flush=True,
-        )
-
-    def __enter__(self) -> _StopOnSignal:
-        import threading
-
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._previous[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def __exit__(self, *exc) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
 
 
 class TeleopSession:
@@ -527,7 +495,8 @@ class TeleopSession:
         header = getattr(self.device, "header", None)
         if self.viewer_option is False and getattr(self.device, "needs_viewer", False):
             raise ValueError(f"the {self.device.name} device needs the viewer's window")
-        with _StopOnSignal() as stopper:
+        on_stop = "ending the session, without the episode under way"
+        with StopOnSignal(on_stop) as stopper:
             try:
                 self._open_dataset()
                 if header:
