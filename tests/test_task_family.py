@@ -270,3 +270,12 @@ def test_every_family_provides_every_hook(family):
         trace[column][:] = np.nan
     label = diagnostics.label_failure(trace, diagnostics.LabelContext(family, False))
     assert label == "timeout"
+
+
+def test_a_robot_workspace_refuses_what_is_not_a_number():
+    from wirecraft.assets.robots.base import Workspace
+
+    assert Workspace().max_x == math.inf
+    for bad in (float("nan"), "far", None, True):
+        with pytest.raises(ValueError, match="max_x"):
+            Workspace(max_x=bad)

@@ -187,6 +187,14 @@ class Workspace:
     max_x: float = math.inf  # m: farthest x at which it holds a pose above a part on the table
     max_height: float = math.inf  # m: highest point at which it holds a part horizontally
 
+    def __post_init__(self) -> None:
+        for name in ("max_x", "max_height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value):
+                raise ValueError(
+                    f"Workspace.{name} must be a number (inf: no limit), got {value!r}"
+                )
+
 
 @dataclass(frozen=True)
 class RobotSpec:
