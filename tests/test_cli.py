@@ -176,7 +176,7 @@ def test_bench_envs_rows_csv_and_plot(tmp_path):
         assert key in row
     assert row["physics_steps_per_s"] == pytest.approx(8 * row["control_steps_per_s"], rel=1e-3)
     assert row["overhead_ratio"] > 1.0  # the environment does more than the raw physics
-    assert (tmp_path / "bench_envs.csv").read_text().startswith("task,info,wire,num_envs")
+    assert (tmp_path / "bench_envs.csv").read_text().startswith("task,options,info,wire,num_envs")
     assert np.asarray(Image.open(tmp_path / "bench_envs.png")).std() > 10
 
 

@@ -100,7 +100,7 @@ def test_gymnasium_make_vec_builds_the_batched_vector_env(mode):
     kwargs = {} if mode is None else {"vectorization_mode": mode}
     venv = gym.make_vec(INSERTION, num_envs=2, threads=1, connector="usb_a", **kwargs)
     try:
-        assert isinstance(venv, WireCraftVectorEnv) and venv.batched
+        assert isinstance(venv, WireCraftVectorEnv)
         assert venv.num_envs == 2 and venv.envs[0].task.connector.name == "usb_a"
         assert venv.spec.id == INSERTION and venv.spec.max_episode_steps == 480
         expected = "Pick up the usb_a plug and insert it into the port."

@@ -73,26 +73,24 @@ class PushTask(Task):
         plug = np.array([rng.uniform(-0.1, 0.1), 0.0, 0.02])
         self.assembly.place(model, data, plug, np.array([0.0, 1.0, 0.0]), 0.0)
 
-    def distance(self, data) -> float:
-        return norm((data.xpos[self.assembly.plug_id] - self.mark())[:2])
+    def distance_batch(self, frame) -> np.ndarray:
+        """(N,) the plug's distance to the mark on the table."""
+        return norm((frame.xpos[:, self.assembly.plug_id] - self.mark())[:, :2])
 
-    def privileged_state(self, model, data) -> np.ndarray:
-        plug = self.to_base(data, data.xpos[self.assembly.plug_id])
-        return np.concatenate([self.robot.proprioception(model, data), plug, [self.distance(data)]])
+    def observe_batch(self, frame) -> np.ndarray:
+        plug = self.to_base_batch(frame, frame.xpos[:, self.assembly.plug_id])
+        distance = self.distance_batch(frame)[:, None]
+        return np.concatenate([self.robot_state_batch(frame), plug, distance], axis=1)
 
-    def reward_terms(self, model, data, action) -> dict[str, float]:
+    def reward_batch(self, frame, trackers, actions) -> dict[str, np.ndarray]:
         return {
-            "closer": -self.distance(data),
-            "action": float(np.sum(np.square(action))),
+            "closer": -self.distance_batch(frame),
+            "action": np.sum(np.square(actions), axis=1),
         }
 
-    def evaluate(self, model, data, diagnostics: bool = True) -> dict[str, float | bool]:
-        distance = self.distance(data)
-        return {
-            "success": distance <= self.options.tolerance,
-            "mark_distance": distance,
-            **(self.diagnostics(model, data) if diagnostics else {}),
-        }
+    def evaluate_batch(self, frame, data_of) -> dict[str, np.ndarray]:
+        distance = self.distance_batch(frame)
+        return {"success": distance <= self.options.tolerance, "mark_distance": distance}
 
 
 @metrics_of(PushTask)

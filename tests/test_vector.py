@@ -25,7 +25,7 @@ def run(venv, actions):
     return trace
 
 
-@pytest.mark.parametrize("task", ["insertion", "routing"])
+@pytest.mark.parametrize("task", ["insertion", "routing", "seating"])
 def test_environment_zero_is_the_same_whatever_num_envs_and_threads(task):
     steps = 25
     base = actions_for(wirecraft.make_vec(task, 8, threads=2), steps)
@@ -51,14 +51,14 @@ def test_environment_zero_is_the_same_whatever_num_envs_and_threads(task):
     np.testing.assert_array_equal(np.concatenate(single), reference)
 
 
-@pytest.mark.parametrize("batched, sync_envs", [(True, True), (True, False), (False, True)])
-def test_a_diverging_environment_leaves_the_others_untouched(batched, sync_envs):
+@pytest.mark.parametrize("task", ["insertion", "routing", "seating"])
+@pytest.mark.parametrize("sync_envs", [True, False])
+def test_a_diverging_environment_leaves_the_others_untouched(task, sync_envs):
     steps, victim = 6, 2
-    actions = actions_for(wirecraft.make_vec("insertion", 4, threads=2), steps)
+    actions = actions_for(wirecraft.make_vec(task, 4, threads=2), steps)
 
     def trajectories(inject):
-        venv = wirecraft.make_vec("insertion", 4, threads=2, batched=batched, sync_envs=sync_envs)
-        assert venv.batched == batched
+        venv = wirecraft.make_vec(task, 4, threads=2, sync_envs=sync_envs)
         obs, _ = venv.reset(seed=SEED)
         out, flags = [obs.copy()], []
         for k, a in enumerate(actions):
@@ -84,7 +84,7 @@ def test_a_diverging_environment_leaves_the_others_untouched(batched, sync_envs)
     assert np.all(np.isfinite(hit))
 
 
-@pytest.mark.parametrize("task", ["insertion", "routing"])  # batched and per-environment steps
+@pytest.mark.parametrize("task", ["insertion", "routing", "seating"])
 def test_same_step_autoreset_reports_final_obs_and_starts_a_new_episode(task):
     venv = wirecraft.make_vec(task, 2, threads=1, episode_seconds=5 / 60)
     env = wirecraft.make(task, episode_seconds=5 / 60)
@@ -162,7 +162,7 @@ def test_partial_reset_touches_only_the_masked_environments():
         ({"num_envs": 2.5}, "num_envs"),
         ({"arrays": "jax"}, "unknown arrays"),
         ({"sync_envs": "false"}, "sync_envs must be True or False"),
-        ({"batched": 0}, "batched must be True or False"),
+        ({"sync_envs": False, "obs_mode": "rgb", "image_size": 32}, "sync_envs=False needs"),
         ({"diagnostics": "no"}, "diagnostics must be True or False"),
     ],
 )
@@ -184,10 +184,23 @@ def test_nan_action_in_one_environment_is_refused_before_anything_moves():
 
 
 def test_image_observations_batch():
+    """One shared renderer draws every row, and each row is what a single environment with
+    that row's seed renders, after reset and after steps."""
     venv = wirecraft.make_vec("seating", 2, threads=1, obs_mode="rgb", image_size=32)
     obs, _ = venv.reset(seed=SEED)
     assert obs["rgb_side"].shape == (2, 32, 32, 3)
     assert venv.observation_space.contains(obs)
+    single = wirecraft.make("seating", obs_mode="rgb", image_size=32)
+    single_obs, _ = single.reset(seed=env_seed(SEED, 1))
+    actions = actions_for(venv, 3)
+    for a in actions:
+        for key in ("rgb_side", "rgb_wrist", "proprio"):
+            np.testing.assert_array_equal(obs[key][1], single_obs[key], err_msg=key)
+        obs, *_ = venv.step(a)
+        single_obs, *_ = single.step(a[1])
+    assert obs["rgb_wrist"][1].any()  # something was drawn
+    venv.close()
+    single.close()
 
 
 def test_torch_arrays_match_numpy_and_share_memory():

@@ -387,6 +387,30 @@ def _bench_args(p):
         "--out", type=output_dir, help="envs suite: folder for CSV and PNG (default: out/bench)"
     )
     p.add_argument("--json", metavar="PATH", type=output_file, help="write the rows as JSON")
+    for flag, (key, kind, _, families) in task_flags().items():
+        if families:  # the families' own options (--num-clips, --channel, ...)
+            help_text = f"envs suite: {key} of the {', '.join(families)} rows"
+            p.add_argument(flag, dest=f"option_{key}", type=kind, default=None, help=help_text)
+
+
+def _bench_options(args, tasks) -> dict[str, dict]:
+    """task -> the task options given as flags; a flag that no benchmarked task takes is an
+    error."""
+    options: dict[str, dict] = {task: {} for task in tasks}
+    for flag, (key, _, names, families) in task_flags().items():
+        value = getattr(args, f"option_{key}", None)
+        if not families or value is None:
+            continue
+        takers = [task for task in tasks if task in families]
+        if not takers:
+            raise usage_error(
+                flag, f"taken by {', '.join(families)} only; benchmarked: {', '.join(tasks)}"
+            )
+        if names is not None and value not in names():
+            raise usage_error(flag, f"unknown {key} {value!r}; valid: {', '.join(names())}")
+        for task in takers:
+            options[task][key] = value
+    return options
 
 
 @command("bench", "print throughput figures (physics steps/s, real-time factor)", _bench_args)
@@ -394,6 +418,13 @@ def cmd_bench(args) -> int:
     if args.suite != "envs":
         envs_flags = ("--task", "--num-envs", "--threads", "--warmup", "--full-info", "--out")
         only_with(args, "--suite envs", *envs_flags)
+        given = [
+            flag
+            for flag, (key, *_) in task_flags().items()
+            if getattr(args, f"option_{key}", None) is not None
+        ]
+        if given:
+            raise usage_error(given[0], "only with --suite envs")
     if args.suite == "robots":
         only_with(args, "--suite wires or --suite envs", "--wire")
     from wirecraft.assets.wires import WIRE_MODELS
@@ -426,7 +457,8 @@ def cmd_bench(args) -> int:
         threads = args.threads or [1, 2]
         warmup = 1.0 if args.warmup is None else args.warmup
         info = "full" if args.full_info else "training"
-        rows = envs.run(tasks, wire_models, counts, threads, args.seconds, warmup, info)
+        options = _bench_options(args, tasks)
+        rows = envs.run(tasks, wire_models, counts, threads, args.seconds, warmup, info, options)
         envs.print_table(rows)
         with atomic_path(out / "bench_envs.csv") as tmp:
             envs.write_csv(rows, tmp)

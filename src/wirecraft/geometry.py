@@ -193,3 +193,21 @@ def rotation_from_axis(axis: np.ndarray, roll: float) -> np.ndarray:
     z = np.cross(x, y)
     c, s = np.cos(roll), np.sin(roll)
     return np.column_stack([x, c * y + s * z, -s * y + c * z])
+
+
+def segments_meet_box(starts: np.ndarray, ends: np.ndarray, low, high) -> np.ndarray:
+    """Whether each segment from ``starts`` to ``ends`` (..., 3) has a point inside the
+    axis-aligned box ``low`` <= p <= ``high`` (slab clipping: the segment's parameter range
+    [0, 1] narrowed to each axis's slab must stay non-empty)."""
+    step = ends - starts
+    low, high = np.asarray(low, float), np.asarray(high, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_low = (low - starts) / step
+        t_high = (high - starts) / step
+    flat = step == 0  # parallel to the slab: inside it everywhere or nowhere
+    within = (starts >= low) & (starts <= high)
+    enter = np.where(flat, np.where(within, -np.inf, np.inf), np.minimum(t_low, t_high))
+    leave = np.where(flat, np.where(within, np.inf, -np.inf), np.maximum(t_low, t_high))
+    first = np.maximum(np.max(enter, axis=-1), 0.0)
+    last = np.minimum(np.min(leave, axis=-1), 1.0)
+    return first <= last

@@ -36,6 +36,12 @@ def _sum_last(products: np.ndarray) -> np.ndarray:
     return total
 
 
+def sum_in_order(x) -> np.ndarray:
+    """Sum over the last axis, left to right: the same bits for one row as for many (numpy's
+    own reduction changes its order with the array's shape)."""
+    return _sum_last(np.asarray(x, dtype=float))
+
+
 def dot(a, b) -> np.ndarray | float:
     """Inner product over the last axis, summed left to right. Scalars for 1-D inputs."""
     total = _sum_last(np.asarray(a, dtype=float) * np.asarray(b, dtype=float))

@@ -27,6 +27,7 @@ NUM_ENVS = (1, 4, 16, 64, 256, 1024)
 THREADS = (1, 2)
 FIELDS = (
     "task",
+    "options",
     "info",
     "wire",
     "num_envs",
@@ -53,13 +54,16 @@ def measure(
     seconds: float,
     warmup: float,
     info: str = "training",
+    options: dict | None = None,
 ) -> dict:
     import mujoco
 
     import wirecraft
-    from wirecraft.envs.env import STATE_SPEC
 
-    venv = wirecraft.make_vec(task, num_envs, threads=threads, wire=wire, **INFO_CONFIGS[info])
+    options = dict(options or {})
+    venv = wirecraft.make_vec(
+        task, num_envs, threads=threads, wire=wire, **INFO_CONFIGS[info], **options
+    )
     venv.reset(seed=0)
     rng = np.random.default_rng(0)
     batch = venv.batch
@@ -68,16 +72,12 @@ def measure(
     def paired_step() -> tuple[float, float]:
         """(raw, env) seconds of one control step from the same states: the batch alone
         steps them (controls held), the states are put back, then the environment steps."""
-        if not venv.batched:  # the per-environment step keeps its states in each MjData
-            for i, env in enumerate(venv.envs):
-                mujoco.mj_getState(venv.model, env.data, batch.state[i], STATE_SPEC)
         saved = batch.state.copy()
         start = time.perf_counter()
         batch.step(nstep=SUBSTEPS)
         raw = time.perf_counter() - start
         batch.state[:] = saved
-        if venv.batched:  # its next step reads the derived fields of those states
-            batch.forward(stage=acc)
+        batch.forward(stage=acc)  # the next step reads the derived fields of those states
         actions = rng.uniform(-0.3, 0.3, venv.action_space.shape)
         start = time.perf_counter()
         venv.step(actions)
@@ -96,6 +96,7 @@ def measure(
     control = num_envs / env_time
     return {
         "task": task,
+        "options": " ".join(f"{k}={v}" for k, v in sorted(options.items())),
         "info": info,
         "wire": wire,
         "num_envs": num_envs,
@@ -116,24 +117,33 @@ def run(
     seconds: float = 5.0,
     warmup: float = 1.0,
     info: str = "training",
+    options: dict[str, dict] | None = None,
 ):
+    """Rows of ``measure`` for every (task, wire, num_envs, threads); ``options``: task ->
+    its task options (e.g. ``{"routing": {"num_clips": 3}}``)."""
     from tqdm import tqdm
 
+    options = options or {}
     cases = [(t, w, n, k) for t in tasks for w in wires for n in num_envs for k in threads]
     return [
-        measure(*case, seconds, warmup, info)
+        measure(*case, seconds, warmup, info, options.get(case[0]))
         for case in tqdm(cases, desc="bench envs", unit="config")
     ]
 
 
+def variant(row: dict) -> str:
+    """The row's task with its options: ``routing num_clips=3``."""
+    return f"{row['task']} {row['options']}".strip()
+
+
 def print_table(rows: list[dict]) -> None:
     print(
-        f"{'task':10} {'info':8} {'wire':12} {'envs':>5} {'thr':>3} {'control/s':>10}"
+        f"{'task':22} {'info':8} {'wire':12} {'envs':>5} {'thr':>3} {'control/s':>10}"
         f" {'physics/s':>11} {'x real':>8} {'raw phys/s':>11} {'env/raw':>8}"
     )
     for r in rows:
         print(
-            f"{r['task']:10} {r['info']:8} {r['wire']:12} {r['num_envs']:>5} {r['threads']:>3} "
+            f"{variant(r):22} {r['info']:8} {r['wire']:12} {r['num_envs']:>5} {r['threads']:>3} "
             f"{r['control_steps_per_s']:>10.0f} {r['physics_steps_per_s']:>11.0f} "
             f"{r['realtime_factor']:>8.1f} {r['raw_physics_steps_per_s']:>11.0f} "
             f"{r['overhead_ratio']:>8.2f}"
@@ -157,10 +167,10 @@ def plot(rows: list[dict], path: str | Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, (ax, ax_ratio) = plt.subplots(1, 2, figsize=(11, 4.2))
-    keys = sorted({(r["task"], r["wire"], r["threads"]) for r in rows})
+    keys = sorted({(variant(r), r["wire"], r["threads"]) for r in rows})
     for task, wire, threads in keys:
         sel = sorted(
-            (r for r in rows if (r["task"], r["wire"], r["threads"]) == (task, wire, threads)),
+            (r for r in rows if (variant(r), r["wire"], r["threads"]) == (task, wire, threads)),
             key=lambda r: r["num_envs"],
         )
         n = [r["num_envs"] for r in sel]

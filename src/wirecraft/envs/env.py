@@ -280,6 +280,7 @@ class WireCraftEnv(gym.Env):
             control, self.robot, self.model, ControlConfig(substeps=SUBSTEPS)
         )
         self._renderer = None
+        self._owns_renderer = True
         self._viewer = None
         self.elapsed_steps = 0  # control steps of the current episode (truncated at max_steps)
         self._last_obs = None
@@ -504,6 +505,7 @@ class WireCraftEnv(gym.Env):
         )
         other.robot.reset_home(self.model, other.data)
         other._renderer = None
+        other._owns_renderer = True
         other._viewer = None
         other._np_random = None
         other._np_random_seed = None
@@ -542,6 +544,14 @@ class WireCraftEnv(gym.Env):
         if self.obs_mode == "state_rgb":
             obs["state"] = state
         return obs
+
+    def use_renderer(self, renderer) -> None:
+        """Draw this environment's images with ``renderer`` (a ``FastRenderer`` of this model
+        and ``image_size``, shared with other environments of the model; its owner closes
+        it)."""
+        if self._renderer is not None and self._owns_renderer:
+            self._renderer.close()
+        self._renderer, self._owns_renderer = renderer, False
 
     def _images(self, camera: str, depth: bool):
         if self._renderer is None:
@@ -582,7 +592,8 @@ class WireCraftEnv(gym.Env):
     def close(self):
         self._closed = True
         if self._renderer is not None:
-            self._renderer.close()
+            if self._owns_renderer:
+                self._renderer.close()
             self._renderer = None
         if self._viewer is not None:
             self._viewer.close()

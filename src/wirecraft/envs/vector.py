@@ -1,27 +1,24 @@
 """Many environments of one task on one compiled model, their physics stepped on C threads.
 
 ``WireCraftVectorEnv`` keeps one ``WireCraftEnv`` per environment (clones sharing the model:
-each its own MjData, controller targets, task state and random generator).  A step runs every
-environment's controller, then advances all physics at once with ``mujoco.batch.Batch``
-(bit-identical to a loop of ``mj_step`` at any thread count), then computes each environment's
-observation, reward and info.  Per-environment randomization (poses, port and clip placement,
-channel shape, wire state) is state, so nothing is rebuilt.
+each its own MjData, controller targets, task state and random generator).  Per-environment
+randomization (poses, port and clip placement, channel shape, wire state) is state, so nothing
+is rebuilt.
 
 Seeds: ``reset(seed=s)`` gives environment i the seed derived from (s, i) alone, so
 environment i sees the same episodes whatever ``num_envs`` and ``threads`` are.
 
-Batched tasks (``Task.batched``, e.g. insertion) with state observations take the batched
-step (``batched=True``, the default where possible): the controller, the task's latch logic,
-reward, success and observation run once on (num_envs, ...) arrays (``ControlState``, a
-``Frame`` of the batch's bound fields) instead of once per environment, with the same code a
-single environment runs for N = 1, so episodes stay bit-identical.  The batch's state rows are
-then the environments' state.  With ``sync_envs=True`` (the default) each environment's
-``MjData``, controller targets and task trackers are brought up to date after every step
-(``Batch.get_data``), and what is written into them between steps (an external force, a
-placed plug) is taken into the batch before the next, so ``envs[i]`` behaves as in the
-per-environment step; ``sync_envs=False`` skips both per-environment copies, for consumers
-that only call ``step`` and read what it returns (RL training).  Other tasks and image
-observations step per environment.
+A step runs once on (num_envs, ...) arrays: the controllers (``ControlState``), the physics
+(``mujoco.batch.Batch``, bit-identical to a loop of ``mj_step`` at any thread count), then the
+task's latch logic, reward, success and state observation on a ``Frame`` of the batch's bound
+fields, with the same code a single environment runs for N = 1, so episodes stay
+bit-identical.  The batch's state rows are the environments' state.  With ``sync_envs=True``
+(the default) each environment's ``MjData``, controller targets and task trackers are brought
+up to date after every step (``Batch.get_data``), and what is written into them between steps
+(an external force, a placed plug) is taken into the batch before the next, so ``envs[i]``
+behaves as a single environment; ``sync_envs=False`` skips both per-environment copies, for
+consumers that only call ``step`` and read what it returns (RL training).  Image observations
+are rendered from each synced environment's ``MjData``.
 
 Autoreset: gymnasium's SAME_STEP mode.  An environment whose episode ends (time limit or
 divergence) is reset within the same ``step``; its last observation and info are in
@@ -82,7 +79,6 @@ class WireCraftVectorEnv(VectorEnv):
         num_envs: int,
         *,
         threads: int = 0,
-        batched: bool | None = None,
         sync_envs: bool = True,
         **kwargs,
     ) -> None:
@@ -90,8 +86,6 @@ class WireCraftVectorEnv(VectorEnv):
         cpus = os.cpu_count() or 1
         validation.int_in_range("make_vec", "threads", threads, 0, cpus, f"0: all {cpus} CPUs")
         validation.boolean("make_vec", "sync_envs", sync_envs)
-        if batched is not None:
-            validation.boolean("make_vec", "batched", batched)
         if kwargs.get("render_mode") == "human":
             raise ValueError("make_vec: render_mode='human' is for single environments")
         first = WireCraftEnv(task, **kwargs)
@@ -120,30 +114,37 @@ class WireCraftVectorEnv(VectorEnv):
         self._obs = create_empty_array(self.single_observation_space, num_envs)
         self._needs_reset = np.ones(num_envs, bool)
         self._spec = None
-        possible = first.task.batched and first.obs_mode == "state"
-        if batched and not possible:
+        # Images are rendered from each environment's own MjData.
+        self.images = first.obs_mode != "state"
+        if self.images and not sync_envs:
             raise ValueError(
-                f"make_vec: batched=True needs a batched task ({first.task.name} is "
-                f"{'' if first.task.batched else 'not '}batched) and obs_mode='state' "
-                f"(got {first.obs_mode!r})"
+                f"make_vec: sync_envs=False needs obs_mode='state' (got {first.obs_mode!r}): "
+                "image observations are rendered from each environment's synced MjData"
             )
-        self.batched = possible if batched is None else bool(batched)
         self.sync_envs = bool(sync_envs)
-        if self.batched:
-            self.controls = ControlState.gather([env.controller for env in self.envs])
-            self.trackers = {
-                name: np.full(num_envs, value) for name, value in first.task.trackers.items()
-            }
-            self.steps = np.zeros(num_envs, int)
-            self._incoming = np.empty_like(self.batch.state)
-            # After the substeps the batch computes the new state's positions, contacts and
-            # contact flags (position stage; velocities too, which its next step reuses, so
-            # this costs nothing).  Constraint forces and acceleration-stage sensors need a
-            # full forward pass: for the diagnostics and for synced environments (experts
-            # read the wrist force), in the batch; otherwise only for the environments that
-            # need them (an engaged latch's force), on their own MjData.
-            full = first.diagnostics or self.sync_envs
-            self._end_stage = ACC if full else VEL
+        self._renderer = None
+        if self.images or self.render_mode == "rgb_array":
+            from wirecraft.render import FastRenderer
+
+            # One renderer draws every environment: they share the model, so one OpenGL
+            # context holds its meshes once, and no context switches between images.
+            self._renderer = FastRenderer(self.model, first.image_size, first.image_size)
+            for env in self.envs:
+                env.use_renderer(self._renderer)
+        self.controls = ControlState.gather([env.controller for env in self.envs])
+        self.trackers = {
+            name: np.full(num_envs, value) for name, value in first.task.trackers.items()
+        }
+        self.steps = np.zeros(num_envs, int)
+        self._incoming = np.empty_like(self.batch.state)
+        # After the substeps the batch computes the new state's positions, contacts and
+        # contact flags (position stage; velocities too, which its next step reuses, so this
+        # costs nothing).  Constraint forces and acceleration-stage sensors need a full forward
+        # pass: for the diagnostics and for synced environments (experts read the wrist
+        # force), in the batch; otherwise only for the environments that need them (an
+        # engaged latch's force), on their own MjData.
+        full = first.diagnostics or self.sync_envs
+        self._end_stage = ACC if full else VEL
 
     # -- gymnasium vector API ---------------------------------------------------------------
     def reset(self, *, seed=None, options: dict | None = None):
@@ -163,8 +164,7 @@ class WireCraftVectorEnv(VectorEnv):
         for i, (obs, info) in self._reset_envs(ids, [seeds[i] for i in ids]).items():
             self._write_obs(i, obs)
             infos = self._add_info(infos, info, i)
-        if self.batched:
-            self._load_rows(ids)
+        self._load_rows(ids)
         self._needs_reset[ids] = False
         return self._obs_copy(), infos
 
@@ -179,36 +179,7 @@ class WireCraftVectorEnv(VectorEnv):
         bad = np.flatnonzero(~np.all(np.isfinite(actions), axis=1))
         if bad.size:
             raise ValueError(f"actions of environments {bad.tolist()} contain NaN or inf")
-        if self.batched:
-            return self._step_batched(actions)
-        befores = [env.begin_step(a) for env, a in zip(self.envs, actions, strict=True)]
-        failed = self._step_physics()
-        rewards = np.zeros(self.num_envs)
-        terminations = np.zeros(self.num_envs, bool)
-        truncations = np.zeros(self.num_envs, bool)
-        infos: dict = {}
-        results = [
-            env.finish_step(actions[i], befores[i], failed=i in failed, forwarded=True)
-            for i, env in enumerate(self.envs)
-        ]
-        # SAME_STEP autoreset: report the final step, start the next episode now.
-        ended = [
-            i
-            for i, (_, _, terminated, truncated, _) in enumerate(results)
-            if terminated or truncated
-        ]
-        restarted = self._reset_envs(ended)
-        step_infos = []
-        for i, (obs, reward, terminated, truncated, info) in enumerate(results):
-            if i in restarted:
-                infos = self._add_info(infos, {"final_obs": obs, "final_info": info}, i)
-                obs, reset_info = restarted[i]
-                info = {**info, **{f"reset/{k}": v for k, v in reset_info.items()}}
-            self._write_obs(i, obs)
-            rewards[i], terminations[i], truncations[i] = reward, terminated, truncated
-            step_infos.append(info)
-        infos = self._merge_infos(infos, step_infos)
-        return self._obs_copy(), rewards, terminations, truncations, infos
+        return self._step(actions)
 
     def set_states(self, ids, states: list[dict]):
         """Put environments ``ids`` into ``states`` (``WireCraftEnv.get_state`` snapshots, e.g.
@@ -223,8 +194,7 @@ class WireCraftVectorEnv(VectorEnv):
             self.envs[i].set_state(state)
             self._needs_reset[i] = False
             self._write_obs(i, self.envs[i].observe())
-        if self.batched:
-            self._load_rows(ids)
+        self._load_rows(ids)
         obs = self._obs_copy()
         if isinstance(obs, dict):
             return {k: v[ids] for k, v in obs.items()}
@@ -249,7 +219,7 @@ class WireCraftVectorEnv(VectorEnv):
     def call(self, name: str, *args, **kwargs) -> tuple:
         """Each environment's attribute ``name``, called with ``args`` where it is a method (as
         gymnasium's SyncVectorEnv.call; e.g. ``call("task_description")``)."""
-        if self.batched and not self.sync_envs:
+        if not self.sync_envs:
             for i in range(self.num_envs):
                 self._sync_env(i)
         results = []
@@ -271,14 +241,17 @@ class WireCraftVectorEnv(VectorEnv):
     def close_extras(self, **kwargs) -> None:
         for env in self.envs:
             env.close()
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
 
     def render(self):
-        if self.batched and not self.sync_envs:
+        if not self.sync_envs:
             for i in range(self.num_envs):
                 self._sync_env(i)
         return tuple(env.render() for env in self.envs)
 
-    # -- the batched step --------------------------------------------------------------------
+    # -- the step ---------------------------------------------------------------------------
     def _load_rows(self, ids, *, only_changed: bool = False) -> None:
         """Make the batch rows ``ids`` the state of those environments: their MjData,
         controller targets, task trackers and step counts (after a reset, or anything written
@@ -303,7 +276,7 @@ class WireCraftVectorEnv(VectorEnv):
         self.batch.state[ids] = incoming
         self.batch.forward(ids, stage=ACC)  # derived fields of the new states
 
-    def _step_batched(self, actions):
+    def _step(self, actions):
         first, frame, n = self.envs[0], self.frame, self.num_envs
         task = first.task
         clipped = np.clip(actions, -1.0, 1.0)
@@ -350,7 +323,7 @@ class WireCraftVectorEnv(VectorEnv):
         terms = task.reward_batch(frame, self.trackers, clipped)
         weighted, rewards = weighted_reward(terms, task.weights)
         core = task.evaluate_batch(frame, data_of)
-        obs = task.observe_batch(frame)
+        state_obs = None if self.images else task.observe_batch(frame)
         for name, values in self.trackers.items():
             values[diverged] = trackers_before[name][diverged]
 
@@ -358,6 +331,11 @@ class WireCraftVectorEnv(VectorEnv):
         # renderers and snapshots read them), or those the step reports per environment.
         for i in range(n) if self.sync_envs else diverged:
             self._sync_env(i, data_of)
+        if self.images:
+            for i, env in enumerate(self.envs):
+                self._write_obs(i, env.observe())
+        else:
+            self._obs[:] = state_obs
 
         infos: dict = {name: np.array(values) for name, values in core.items()}
         infos["instruction"] = np.array([env.task.instruction for env in self.envs], object)
@@ -371,7 +349,8 @@ class WireCraftVectorEnv(VectorEnv):
         rewards = np.where(bad, 0.0, rewards)
         for i in diverged:  # as a single environment reports a rolled-back step
             env = self.envs[i]
-            obs[i] = env.observe()
+            if not self.images:
+                self._write_obs(i, env.observe())
             for name, value in {**env.info_without_reward(), "diverged": True}.items():
                 infos[name][i] = value
         step_keys = list(infos)
@@ -382,14 +361,15 @@ class WireCraftVectorEnv(VectorEnv):
         done = np.flatnonzero(truncations)
         for i in done:  # SAME_STEP autoreset: report the final step, start the next episode
             final_info = {name: _item(infos[name][i]) for name in step_keys}
-            infos = self._add_info(infos, {"final_obs": obs[i].copy(), "final_info": final_info}, i)
+            infos = self._add_info(
+                infos, {"final_obs": self._obs_row(i), "final_info": final_info}, i
+            )
         for i, (new_obs, reset_info) in self._reset_envs(done).items():
-            obs[i] = new_obs
+            self._write_obs(i, new_obs)
             infos = self._add_info(infos, {f"reset/{k}": v for k, v in reset_info.items()}, i)
         self._load_rows(done)
-        self._obs[:] = obs
         terminations = np.zeros(n, bool)
-        return obs, rewards, terminations, truncations, infos
+        return self._obs_copy(), rewards, terminations, truncations, infos
 
     def _sync_env(self, i: int, data_of=None) -> None:
         env = self.envs[i]
@@ -488,46 +468,18 @@ class WireCraftVectorEnv(VectorEnv):
             raise ValueError(f"{owner}: {len(seeds)} seeds for {self.num_envs} environments")
         return seeds
 
-    def _step_physics(self) -> set[int]:
-        """Advance every environment by one control period in the batch; returns the ids for
-        which MuJoCo raised (they kept their state)."""
-        state = self.batch.state
-        for i, env in enumerate(self.envs):
-            mujoco.mj_getState(self.model, env.data, state[i], STATE_SPEC)
-        failed: set[int] = set()
-        try:
-            self.batch.step(nstep=SUBSTEPS, stage=mujoco.mjtStage.mjSTAGE_ACC.value)
-        except SimulationError as err:
-            failed = {int(i) for i in err.ids}
-        for i, env in enumerate(self.envs):
-            self.batch.get_data(i, env.data)
-        return failed
-
-    def _merge_infos(self, infos: dict, step_infos: list[dict]) -> dict:
-        """gymnasium's batched info layout (``key`` array + ``_key`` mask), built one key at a
-        time when every environment reports the same scalar keys (the usual step), instead of
-        one environment at a time (``_add_info``, kept for everything else)."""
-        first = step_infos[0]
-        scalar = (bool, int, float, np.number, str)
-        if all(info.keys() == first.keys() for info in step_infos) and all(
-            isinstance(v, scalar) for v in first.values()
-        ):
-            everyone = np.ones(self.num_envs, bool)
-            for key, value in first.items():
-                dtype = object if isinstance(value, str) else type(value)
-                infos[key] = np.array([info[key] for info in step_infos], dtype=dtype)
-                infos[f"_{key}"] = everyone.copy()
-            return infos
-        for i, info in enumerate(step_infos):
-            infos = self._add_info(infos, info, i)
-        return infos
-
     def _write_obs(self, index: int, obs) -> None:
         if isinstance(self._obs, dict):
             for key, value in obs.items():
                 self._obs[key][index] = value
         else:
             self._obs[index] = obs
+
+    def _obs_row(self, index: int):
+        """A copy of environment ``index``'s observation."""
+        if isinstance(self._obs, dict):
+            return {k: v[index].copy() for k, v in self._obs.items()}
+        return self._obs[index].copy()
 
     def _obs_copy(self):
         if isinstance(self._obs, dict):

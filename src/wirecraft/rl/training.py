@@ -115,7 +115,12 @@ class Run:
         self.save()
 
 
-TRAINING_VEC_OPTIONS = {"diagnostics": False, "sync_envs": False}
+def training_vec_options(env_kwargs: dict) -> dict:
+    """make_vec options for training, which reads observations, rewards and success flags
+    only: no per-environment force diagnostics, and no per-environment copies of the batch
+    unless images are rendered from them (envs/vector.py)."""
+    images = env_kwargs.get("obs_mode", "state") != "state"
+    return {"diagnostics": False, "sync_envs": images}
 
 
 def _check_expert_control(algorithm: str, task: str, env_kwargs: dict, cfg) -> None:
@@ -306,10 +311,8 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
         train_cfg = ppo.runner_config(
             cfg, actor_groups=("features",), critic_groups=("state",), actor_normalization=False
         )
-    # Training reads observations, rewards and success flags only: no per-environment force
-    # diagnostics, no per-environment copies of the batch (see envs/vector.py).
     venv = wirecraft.make_vec(
-        task, cfg.num_envs, threads=cfg.threads, **env_kwargs, **TRAINING_VEC_OPTIONS
+        task, cfg.num_envs, threads=cfg.threads, **env_kwargs, **training_vec_options(env_kwargs)
     )
     if cfg.expert_starts > 0:
         venv = _with_expert_starts(venv, cfg, run, iterations_done, progress)

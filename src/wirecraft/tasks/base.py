@@ -15,15 +15,15 @@ its controller, and calls the task's hooks, whose names say when they run:
   diverged step), before rewards: discrete changes of the simulation the task owns, such as
   engaging or releasing a connector latch (an ``eq_active`` flag, so it is state).
 
+A task computes its observation, reward, latch logic and success on a ``Frame`` of N
+simulations (``observe_batch``, ``reward_batch``, ``after_step_batch``, ``evaluate_batch``),
+with its step-to-step trackers as (N,) arrays named in ``trackers``.  The per-simulation hooks
+above run the same code with N = 1, and the vector environment runs it once for all its
+environments, so both give the same bits.  Contact flags come from MuJoCo contact sensors
+(``add_contact_sensors``), which arrive in ``sensordata``.
+
 Task state kept across steps (e.g. a high-water mark) goes through ``get_state``/``set_state``
 so that environment snapshots reproduce episodes exactly.
-
-Batched tasks (``batched = True``, e.g. insertion) compute their observation, reward, latch
-logic and success on a ``Frame`` of N simulations (``observe_batch``, ``reward_batch``,
-``after_step_batch``, ``evaluate_batch``), with their step-to-step trackers as (N,) arrays
-named in ``trackers``.  The per-simulation hooks above then run the same code with N = 1, and
-the vector environment runs it once for all its environments.  Their contact flags come from
-MuJoCo contact sensors (``add_contact_sensors``), which arrive in ``sensordata``.
 
 ``evaluate(model, data, diagnostics=True)``: ``diagnostics=False`` leaves out the force and
 cable diagnostics (``diagnostics``), which walk the contact list of every simulation; RL
@@ -42,6 +42,7 @@ from wirecraft import validation
 from wirecraft.assets.robots import RobotHandle
 from wirecraft.assets.robots.base import Workspace
 from wirecraft.assets.wires import WireConfig
+from wirecraft.geometry import quats_near
 from wirecraft.numerics import matmul, tanh
 from wirecraft.registry import Registry
 from wirecraft.sensors import (
@@ -87,7 +88,7 @@ TASKS: Registry[type[Task]] = Registry("task")
 
 def add_contact_found(spec: mujoco.MjSpec, name: str, obj: tuple, ref: tuple) -> None:
     """A contact sensor that counts the contacts (``found``) between ``obj`` and ``ref``, each
-    an (mjtObj, name) pair; XBODY means the body's subtree."""
+    an (mjtObj, name) pair; XBODY means the body's subtree, UNKNOWN (name "") anything."""
     spec.add_sensor(
         name=name,
         type=mujoco.mjtSensor.mjSENS_CONTACT,
@@ -105,8 +106,7 @@ class Task(ABC):
     default_control: ClassVar[str]
     default_weights: ClassVar[dict[str, float]]
     settle_seconds: ClassVar[float] = 1.0
-    batched: ClassVar[bool] = False
-    # Batched tasks: step-to-step trackers (attribute name -> initial value), kept per
+    # Step-to-step trackers (attribute name -> initial value), kept per
     # environment as attributes and, in a vector environment, as (N,) arrays.
     trackers: ClassVar[dict[str, float | bool]] = {}
     held_body: ClassVar[str | None] = None  # the body the pads hold (its contact sensors)
@@ -167,14 +167,15 @@ class Task(ABC):
     def build_scene(self, spec: mujoco.MjSpec, wire_config: WireConfig) -> None: ...
 
     def add_contact_sensors(self, spec: mujoco.MjSpec, robot: RobotHandle) -> None:
-        """Contact sensors (``found``: the number of contacts) for the flags batched tasks
+        """Contact sensors (``found``: the number of contacts) for the flags tasks
         read: each pad against ``held_body``, and each top moving part of the robot (its
         subtree) against the table and against ``fixture_body``'s subtree."""
         obj = mujoco.mjtObj
-        if self.held_body is not None:
-            for k, pad in enumerate(robot.pad_geom_names):
+        self.pad_criteria = [self.held_criteria(spec, pad) for pad in robot.pad_geom_names]
+        for k, pad in enumerate(robot.pad_geom_names):
+            for j, (_, reftype, refname) in enumerate(self.pad_criteria[k]):
                 add_contact_found(
-                    spec, f"touch_pad{k}", (obj.mjOBJ_GEOM, pad), (obj.mjOBJ_BODY, self.held_body)
+                    spec, f"touch_pad{k}_{j}", (obj.mjOBJ_GEOM, pad), (reftype, refname)
                 )
         fixed = {robot.base_site, f"{robot.prefix}chain_base"}
         tops = [
@@ -189,9 +190,21 @@ class Task(ABC):
                 fixture = (obj.mjOBJ_XBODY, self.fixture_body)
                 add_contact_found(spec, f"touch_fixture{k}", subtree, fixture)
 
+    def held_criteria(
+        self, spec: mujoco.MjSpec, pad: str
+    ) -> list[tuple[float, mujoco.mjtObj, str]]:
+        """What the contact sensors of the pad geom ``pad`` count as the held part: (sign,
+        reftype, refname) criteria whose signed ``found`` counts add up to the pad's contacts
+        with it (``held_body``'s geoms; none without one)."""
+        del spec, pad
+        if self.held_body is None:
+            return []
+        return [(1.0, mujoco.mjtObj.mjOBJ_BODY, self.held_body)]
+
     def bind(self, model: mujoco.MjModel, robot: RobotHandle) -> None:
         """Look up, once, what every task reads: the robot's base, TCP and pads, the cable."""
         self.robot = robot
+        self.model = model  # what the wire's batched centre line looks its ids up in
         index = self.robot_index = robot.index(model)
         self.base_site = index.base_site
         self.tcp_site = index.tcp_site
@@ -208,10 +221,17 @@ class Task(ABC):
         self.table_geom = geom_ids(model, ["table"])
         self.assembly.bind(model)
         sensors = {model.sensor(k).name: model.sensor_adr[k] for k in range(model.nsensor)}
+        # (pads, criteria) sensor addresses and signs: every pad has as many criteria.
         self.pad_sensors = np.array(
-            [sensors[f"touch_pad{k}"] for k in range(len(self.pads)) if f"touch_pad{k}" in sensors],
+            [
+                [sensors[f"touch_pad{k}_{j}"] for j in range(len(criteria))]
+                for k, criteria in enumerate(self.pad_criteria)
+            ],
             dtype=int,
-        )
+        ).reshape(len(self.pads), -1)
+        self.pad_sensor_signs = np.array(
+            [[sign for sign, _, _ in criteria] for criteria in self.pad_criteria]
+        ).reshape(self.pad_sensors.shape)
         self.table_sensors = np.array(
             [adr for name, adr in sensors.items() if name.startswith("touch_table")], dtype=int
         )
@@ -225,20 +245,6 @@ class Task(ABC):
     def after_settle(self, model, data) -> None:
         """Called once the scene has settled at reset (e.g. to zero trackers)."""
         del model, data
-
-    def after_step(self, model, data) -> None:
-        """Called after each control step's physics (state up to date, constraint forces of
-        that state included); may change state flags such as ``data.eq_active``."""
-        del model, data
-
-    @abstractmethod
-    def privileged_state(self, model, data) -> np.ndarray: ...
-
-    @abstractmethod
-    def reward_terms(self, model, data, action: np.ndarray) -> dict[str, float]: ...
-
-    @abstractmethod
-    def evaluate(self, model, data, diagnostics: bool = True) -> dict[str, float | bool]: ...
 
     def diagnostics(self, model, data) -> dict[str, float]:
         """Force and cable diagnostics for ``info`` (per simulation: they walk its contacts):
@@ -254,9 +260,6 @@ class Task(ABC):
 
     def set_state(self, state: dict) -> None:
         del state
-
-    def wire_points(self, model, data) -> np.ndarray:
-        return self.assembly.wire.points(model, data)
 
     # -- helpers shared by task families ----------------------------------------------------
     def to_base(self, data, points: np.ndarray) -> np.ndarray:
@@ -308,28 +311,19 @@ class Task(ABC):
         """Any moving part of the robot, pads included, touching the table."""
         return touching(model, data, self.robot_geoms, self.table_geom)
 
-
-class BatchedTask(Task):
-    """A task whose observation, reward, latch logic and success run on a ``Frame`` of N
-    simulations; the per-simulation hooks run the same code with N = 1.  Subclasses implement
-    ``observe_batch``, ``reward_batch``, ``evaluate_batch`` and, if they change simulation
-    flags after a step, ``after_step_batch``; their trackers are attributes named in
-    ``trackers``."""
-
-    batched = True
-
+    # -- the batched hooks: N simulations at once --------------------------------------------
+    @abstractmethod
     def observe_batch(self, frame: Frame) -> np.ndarray:
         """(N, state_dim) privileged states."""
-        raise NotImplementedError
 
+    @abstractmethod
     def reward_batch(self, frame: Frame, trackers: dict, actions: np.ndarray) -> dict:
         """Named, unweighted reward terms, each (N,); may update ``trackers`` (N,) arrays."""
-        raise NotImplementedError
 
+    @abstractmethod
     def evaluate_batch(self, frame: Frame, data_of) -> dict[str, np.ndarray]:
         """Success flags and cheap diagnostics, each (N,).  ``data_of(i)`` gives simulation
         i's ``MjData`` (current) where a quantity needs it."""
-        raise NotImplementedError
 
     def after_step_batch(self, frame: Frame, trackers: dict, rows: np.ndarray, data_of) -> None:
         """``after_step`` for the simulations where ``rows`` (N,) is True (not diverged)."""
@@ -386,8 +380,39 @@ class BatchedTask(Task):
 
     # -- contact flags from the contact sensors ---------------------------------------------
     def pads_touching(self, frame: Frame) -> np.ndarray:
-        """(N, 2) whether each pad touches ``held_body``."""
-        return frame.sensordata[:, self.pad_sensors] > 0
+        """(N, 2) whether each pad touches the held part (``held_criteria``)."""
+        counts = frame.sensordata[:, self.pad_sensors]  # (N, pads, criteria)
+        return np.sum(counts * self.pad_sensor_signs, axis=2) > 0
+
+    def robot_state_batch(self, frame: Frame) -> np.ndarray:
+        """(N, 2 dof + 9) what every family's state starts with: joint angles, gripper
+        opening, joint velocities, gripper opening rate, TCP position and quaternion (base
+        frame; the sign kept near the robot's home orientation)."""
+        index = self.robot_index
+        tcp_rot = self.rot_to_base_batch(frame, frame.rot("site_xmat", self.tcp_site))
+        return np.concatenate(
+            [
+                frame.qpos[:, index.arm_qpos],
+                np.sum(frame.qpos[:, index.finger_qpos], axis=1, keepdims=True),
+                frame.qvel[:, index.arm_dof],
+                np.sum(frame.qvel[:, index.finger_dof], axis=1, keepdims=True),
+                self.to_base_batch(frame, frame.site_xpos[:, self.tcp_site]),
+                quats_near(tcp_rot, self.robot.home_tcp_rot),
+            ],
+            axis=1,
+        )
+
+    def wire_points_batch(self, frame: Frame) -> np.ndarray:
+        """(N, points, 3) the wire's centre line in world coordinates (once per state)."""
+        return frame.cached(
+            "wire_points",
+            lambda: self.assembly.wire.points_batch(
+                self.model, frame.xpos, frame.xmat, frame.flexvert_xpos
+            ),
+        )
+
+    def wire_points(self, model, data) -> np.ndarray:
+        return self.wire_points_batch(self.frame_of(data))[0]
 
     def table_collision(self, frame: Frame) -> np.ndarray:
         """(N,) whether any moving part of the robot touches the table."""

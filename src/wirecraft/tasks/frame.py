@@ -3,7 +3,7 @@
 A ``Frame`` holds arrays with a leading axis of N: the vector environment's are live views of
 its ``mujoco.batch.Batch`` (``Frame.of_batch``), a single environment's are its ``MjData``
 fields with an axis of 1 added (``Frame.of_data``, no copy).  Tasks that compute their
-observation, reward and success on frames (``Task.batched``) run the same code, with the same
+observation, reward and success on frames (every ``Task``) run the same code, with the same
 floating-point operations, in both, so a vector environment's episodes are bit-identical to a
 single environment's.
 """
@@ -26,6 +26,7 @@ FIELDS = (
     "eq_active",
     "cdof",
     "subtree_com",
+    "flexvert_xpos",
 )
 
 
@@ -41,6 +42,7 @@ class Frame:
     eq_active: np.ndarray  # (N, neq); writable: the task's latches change it
     cdof: np.ndarray  # (N, nv, 6) for Jacobians
     subtree_com: np.ndarray  # (N, nbody, 3)
+    flexvert_xpos: np.ndarray  # (N, nflexvert, 3): rod and FEM wires' vertices
     # Quantities derived from the positions, computed once per state (``cached``); whoever
     # changes the state clears it (``Frame.of_batch`` frames live across steps).
     cache: dict = field(default_factory=dict, repr=False)

@@ -131,12 +131,15 @@ class ArticulatedWire(WireHandle):
             ids.append(bid)
         return np.array(ids)
 
-    def _points(self, model: mujoco.MjModel, data: mujoco.MjData, ids: object) -> np.ndarray:
+    def _points(self, xpos, xmat, flexvert_xpos, ids: object) -> np.ndarray:
         ids = np.asarray(ids)
-        starts = data.xpos[ids]
         last = ids[-1]
-        tip = data.xpos[last] + data.xmat[last].reshape(3, 3)[:, 0] * self.config.segment_length
-        return np.vstack([starts, tip])
+        tip = xpos[:, last] + xmat[:, last, 0::3] * self.config.segment_length  # along body x
+        return np.concatenate([xpos[:, ids], tip[:, None]], axis=1)
+
+    def _touch_criteria(self, spec, geom: str) -> list[tuple[float, mujoco.mjtObj, str]]:
+        # The capsules are a chain of bodies under the first: its subtree (no plug, no clamp).
+        return [(1.0, mujoco.mjtObj.mjOBJ_XBODY, self.body_name(0))]
 
     # -- set_centerline ------------------------------------------------------------------------
     def _shape_nodes(self) -> tuple[int, float]:

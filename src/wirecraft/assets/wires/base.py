@@ -256,9 +256,25 @@ class WireHandle(ABC):
 
     def points(self, model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
         """World centre-line points, (num_points, 3), from the start end to the other end."""
+        fields = (data.xpos[None], data.xmat[None], data.flexvert_xpos[None])
+        return self.points_batch(model, *fields)[0]
+
+    def points_batch(
+        self, model: mujoco.MjModel, xpos: np.ndarray, xmat: np.ndarray, flexvert_xpos: np.ndarray
+    ) -> np.ndarray:
+        """``points`` of N simulations, (N, num_points, 3), from their (N, ...) ``xpos``,
+        ``xmat`` and ``flexvert_xpos`` (one code for one simulation and for a batch, so both
+        give the same bits)."""
         if self._ids is None:
             self._ids = self._resolve(model)
-        return self._points(model, data, self._ids)
+        return self._points(xpos, xmat, flexvert_xpos, self._ids)
+
+    def touch_criteria(
+        self, spec: mujoco.MjSpec, geom: str
+    ) -> list[tuple[float, mujoco.mjtObj, str]]:
+        """How contact sensors on the geom ``geom`` count its contacts with this wire:
+        (sign, reftype, refname) criteria whose signed ``found`` counts add up to them."""
+        return self._touch_criteria(spec, geom)
 
     @property
     @abstractmethod
@@ -329,7 +345,11 @@ class WireHandle(ABC):
     def _resolve(self, model: mujoco.MjModel) -> object: ...
 
     @abstractmethod
-    def _points(self, model: mujoco.MjModel, data: mujoco.MjData, ids: object) -> np.ndarray: ...
+    def _points(self, xpos, xmat, flexvert_xpos, ids: object) -> np.ndarray:
+        """(N, num_points, 3) centre lines from N simulations' fields."""
+
+    @abstractmethod
+    def _touch_criteria(self, spec, geom: str) -> list[tuple[float, mujoco.mjtObj, str]]: ...
 
     @abstractmethod
     def _shape_nodes(self) -> tuple[int, float]:
@@ -485,6 +505,19 @@ def add_wire(
     """
     config = config if config is not None else WireConfig()
     return WIRE_MODELS.get(config.model)(spec, config, name, pos, quat)
+
+
+def flex_touch_criteria(spec: mujoco.MjSpec, geom: str) -> list[tuple[float, mujoco.mjtObj, str]]:
+    """Contact sensor criteria for ``geom`` against a flex wire.  A flex contact has no geom on
+    the flex's side, so no body criterion matches it there; the geom's contacts with the flex
+    are all its contacts (no criterion) less those with each other body's geoms (a body
+    criterion matches either side, so the geom's own body, whose geoms never collide with it,
+    is left out).  Exact while the wire is the scene's only flex."""
+    own = spec.geom(geom).parent.name
+    others = [b.name for b in spec.bodies if b.geoms and b.name != own]
+    return [(1.0, mujoco.mjtObj.mjOBJ_UNKNOWN, "")] + [
+        (-1.0, mujoco.mjtObj.mjOBJ_BODY, name) for name in others
+    ]
 
 
 def end_gap(config: WireConfig | None = None) -> float:

@@ -37,6 +37,7 @@ from wirecraft.assets.wires.base import (
     WIRE_MODELS,
     WireConfig,
     WireHandle,
+    flex_touch_criteria,
     set_slide_bodies,
 )
 from wirecraft.numerics import matvec, norm
@@ -137,9 +138,12 @@ class FemWire(WireHandle):
         adr = model.flex_vertadr[flex]
         return np.arange(adr, adr + model.flex_vertnum[flex])
 
-    def _points(self, model: mujoco.MjModel, data: mujoco.MjData, ids: object) -> np.ndarray:
-        verts = data.flexvert_xpos[ids]  # (n * 4, 3), x slowest
-        return verts.reshape(-1, 4, 3).mean(axis=1)
+    def _points(self, xpos, xmat, flexvert_xpos, ids: object) -> np.ndarray:
+        verts = flexvert_xpos[:, ids]  # (N, n * 4, 3), x slowest
+        return verts.reshape(len(verts), -1, 4, 3).mean(axis=2)
+
+    def _touch_criteria(self, spec, geom: str) -> list[tuple[float, mujoco.mjtObj, str]]:
+        return flex_touch_criteria(spec, geom)
 
     # -- set_centerline ------------------------------------------------------------------------
     def _shape_nodes(self) -> tuple[int, float]:

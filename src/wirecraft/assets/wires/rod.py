@@ -24,6 +24,7 @@ from wirecraft.assets.wires.base import (
     WIRE_MODELS,
     WireConfig,
     WireHandle,
+    flex_touch_criteria,
     set_slide_bodies,
 )
 
@@ -142,8 +143,11 @@ class RodWire(WireHandle):
         adr = model.flex_vertadr[flex]
         return np.arange(adr, adr + model.flex_vertnum[flex])
 
-    def _points(self, model: mujoco.MjModel, data: mujoco.MjData, ids: object) -> np.ndarray:
-        return data.flexvert_xpos[ids].copy()
+    def _points(self, xpos, xmat, flexvert_xpos, ids: object) -> np.ndarray:
+        return flexvert_xpos[:, ids]
+
+    def _touch_criteria(self, spec, geom: str) -> list[tuple[float, mujoco.mjtObj, str]]:
+        return flex_touch_criteria(spec, geom)
 
     # -- set_centerline ------------------------------------------------------------------------
     def _shape_nodes(self) -> tuple[int, float]:

@@ -58,7 +58,7 @@ from wirecraft.control import commanded_gap
 from wirecraft.geometry import cross3, quats_near
 from wirecraft.numerics import arccos, arcsin, arctan2, dot, matmul, norm
 from wirecraft.sensors import body_geom_ids, contact_normal_force
-from wirecraft.tasks.base import TASKS, BatchedTask, add_contact_found, shaped
+from wirecraft.tasks.base import TASKS, Task, add_contact_found, shaped
 from wirecraft.tasks.frame import Frame, dots, norms
 from wirecraft.tasks.insertion.options import InsertionOptions
 
@@ -106,7 +106,7 @@ LATCH_AXIS_TOLERANCE = math.radians(15.0)
 
 
 @TASKS.register("insertion")
-class InsertionTask(BatchedTask):
+class InsertionTask(Task):
     name = "insertion"
     gym_id = "WireCraft/ConnectorInsertion-v0"
     default_control = "cartesian"
@@ -360,23 +360,16 @@ class InsertionTask(BatchedTask):
 
     # -- observation ------------------------------------------------------------------------
     def observe_batch(self, frame: Frame) -> np.ndarray:
-        index = self.robot_index
         entry = frame.site_xpos[:, self.entry_site]
         seated = frame.site_xpos[:, self.seated_site]
         tip = frame.site_xpos[:, self.assembly.tip_site]
-        tcp_rot = self.rot_to_base_batch(frame, frame.rot("site_xmat", self.tcp_site))
         plug_rot = self.rot_to_base_batch(frame, frame.rot("xmat", self.assembly.plug_id))
         base_rot = frame.rot("site_xmat", self.base_site)
         port_rot = self.rot_to_base_batch(frame, frame.rot("xmat", self.port_id))
         err = self.seating_errors_batch(frame)
         return np.concatenate(
             [
-                frame.qpos[:, index.arm_qpos],
-                np.sum(frame.qpos[:, index.finger_qpos], axis=1, keepdims=True),
-                frame.qvel[:, index.arm_dof],
-                np.sum(frame.qvel[:, index.finger_dof], axis=1, keepdims=True),
-                self.to_base_batch(frame, frame.site_xpos[:, self.tcp_site]),
-                quats_near(tcp_rot, self.robot.home_tcp_rot),
+                self.robot_state_batch(frame),
                 self.pads_touching(frame).astype(float),
                 matmul((seated - tip)[:, None, :], base_rot)[:, 0, :],
                 self.to_base_batch(frame, frame.xpos[:, self.assembly.plug_id]),

@@ -21,8 +21,8 @@ Randomizations (each reset, from the reset seed)
     not applied: they would drop the cable onto the clips.)
 
 Success conditions
-    success: for every clip, some point of the wire's centre line (sampled every 2 mm) lies
-    inside its slot, below the lips.
+    success: for every clip, some point of the wire's centre line (the polyline through its
+    nodes) lies inside its slot, below the lips.
 
 Privileged state (80-d for a 6-joint arm; positions in the robot base frame)
     proprioception (2 dof + 2), TCP position (3) and quaternion (4), left/right pad touching the
@@ -42,10 +42,10 @@ import numpy as np
 from wirecraft.assets.assembly import WireAssembly
 from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ClipConfig, PlacedClip, add_clip
-from wirecraft.geometry import quat_near, resample
-from wirecraft.numerics import norm
+from wirecraft.geometry import segments_meet_box
 from wirecraft.sensors import body_geom_ids
 from wirecraft.tasks.base import EPISODE_SECONDS, TASKS, Task, shaped
+from wirecraft.tasks.frame import Frame, norms
 from wirecraft.tasks.routing.options import MAX_CLIPS, RoutingOptions
 
 LANE_X = 0.10  # m (world): the lane's line, 0.40 m in front of the WidowX AI's base
@@ -95,7 +95,6 @@ MAX_ROUTE = 0.35  # m of a 0.4 m cable the route from the clamp through every sl
 # pries on a clip when the gripper bends it over the next one (tests/test_routing_layout.py).
 LIP_INTERFERENCE = 0.002  # m
 WIRE_SAMPLES = 10
-SLOT_SAMPLING = 0.002  # m between centre-line samples when judging "in the slot"
 
 
 @TASKS.register("routing")
@@ -161,6 +160,14 @@ class RoutingTask(Task):
         self.clip_contacts = body_geom_ids(model, self.clip_names)
         self.fixture_contacts = self.clip_contacts
         self.held_contacts = self.assembly.wire_contacts
+        self.clamp_id = model.body(self.assembly.clamp).id
+        count = self.assembly.wire.num_points
+        self.wire_samples = np.linspace(0, count - 1, WIRE_SAMPLES).round().astype(int)
+        if model.nflex > len(self.assembly.wire_contacts.flexes):
+            raise ValueError("routing: the pads' wire sensors need the wire as the only flex")
+
+    def held_criteria(self, spec, pad):
+        return self.assembly.wire.touch_criteria(spec, pad)  # the pads hold the wire itself
 
     # -- episode ----------------------------------------------------------------------------
     def lane_x(self) -> float:
@@ -210,69 +217,95 @@ class RoutingTask(Task):
         return clips
 
     def routed(self, model, data) -> list[bool]:
-        line = resample(self.wire_points(model, data), SLOT_SAMPLING)
-        return [bool(clip.contains(line).any()) for clip in self.placed_clips(data)]
+        return [bool(r) for r in self.routed_batch(self.frame_of(data))[0]]
 
-    def _target(self, model, data):
-        """The first clip not yet routed and the wire point nearest to its slot."""
-        routed = self.routed(model, data)
-        pending = [i for i, r in enumerate(routed) if not r]
-        index = pending[0] if pending else len(routed) - 1
-        clip = self.placed_clips(data)[index]
-        slot = np.array(clip.pos) + [0.0, 0.0, clip.config.base_height]
-        points = self.wire_points(model, data)
-        nearest = points[np.argmin(norm(points - slot, axis=1))]
-        return routed, clip, slot, nearest
+    def routed_batch(self, frame: Frame) -> np.ndarray:
+        """(N, clips) whether some point of the wire's centre line lies inside each clip's slot
+        (between the uprights, below the lips): a segment of the polyline meets the slot's box."""
+        return frame.cached("routed", lambda: self._routed_batch(frame))
+
+    def _routed_batch(self, frame: Frame) -> np.ndarray:
+        cfg = self.clip_config
+        pos = frame.xpos[:, self.clip_bodies]  # (N, C, 3)
+        cos = frame.xmat[:, self.clip_bodies, 0][:, :, None]  # the clips turn about z only
+        sin = frame.xmat[:, self.clip_bodies, 3][:, :, None]
+        d = self.wire_points_batch(frame)[:, None] - pos[:, :, None]  # (N, C, K, 3)
+        local = np.stack(
+            [cos * d[..., 0] + sin * d[..., 1], -sin * d[..., 0] + cos * d[..., 1], d[..., 2]],
+            axis=-1,
+        )
+        low = np.array([-cfg.length / 2, -cfg.slot_width / 2, cfg.base_height])
+        high = np.array(
+            [
+                cfg.length / 2,
+                cfg.slot_width / 2,
+                cfg.base_height + cfg.slot_depth - cfg.lip_thickness,
+            ]
+        )
+        return np.any(segments_meet_box(local[..., :-1, :], local[..., 1:, :], low, high), axis=-1)
+
+    def _target_batch(self, frame: Frame):
+        """Per simulation: the first clip not yet routed (the last when all are), its slot
+        centre (N, 3) and the wire point nearest to it (N, 3)."""
+        routed = self.routed_batch(frame)
+        pending = ~routed
+        index = np.where(pending.any(axis=1), np.argmax(pending, axis=1), routed.shape[1] - 1)
+        rows = np.arange(frame.size)
+        clip = frame.xpos[rows, np.asarray(self.clip_bodies)[index]]
+        slot = clip + [0.0, 0.0, self.clip_config.base_height]
+        points = self.wire_points_batch(frame)
+        gaps = points - slot[:, None]
+        nearest = points[rows, np.argmin(np.sum(gaps * gaps, axis=2), axis=1)]
+        return index, slot, nearest
 
     # -- observation ------------------------------------------------------------------------
-    def privileged_state(self, model, data) -> np.ndarray:
-        robot = self.robot
-        tcp = self.to_base(data, data.site_xpos[self.tcp_site])
-        tcp_rot = self.rot_to_base(data, data.site_xmat[self.tcp_site].reshape(3, 3))
-        routed = self.routed(model, data)
-        base_yaw = math.atan2(data.site_xmat[self.base_site][3], data.site_xmat[self.base_site][0])
-        clips = np.zeros((MAX_CLIPS, 7))
-        for i, clip in enumerate(self.placed_clips(data)):
-            slot = np.array(clip.pos) + [0.0, 0.0, clip.config.base_height]
-            yaw = clip.yaw - base_yaw
-            clips[i] = [1.0, *self.to_base(data, slot), math.cos(yaw), math.sin(yaw), routed[i]]
-        points = self.wire_points(model, data)
-        samples = points[np.linspace(0, len(points) - 1, WIRE_SAMPLES).round().astype(int)]
+    def observe_batch(self, frame: Frame) -> np.ndarray:
+        n = frame.size
+        base_rot = frame.rot("site_xmat", self.base_site)
+        base_cos, base_sin = base_rot[:, 0, 0], base_rot[:, 1, 0]
+        routed = self.routed_batch(frame)
+        clips = np.zeros((n, MAX_CLIPS, 7))
+        for k, body in enumerate(self.clip_bodies):
+            slot = frame.xpos[:, body] + [0.0, 0.0, self.clip_config.base_height]
+            cos, sin = frame.xmat[:, body, 0], frame.xmat[:, body, 3]
+            clips[:, k, 0] = 1.0
+            clips[:, k, 1:4] = self.to_base_batch(frame, slot)
+            clips[:, k, 4] = cos * base_cos + sin * base_sin  # the slot's yaw less the base's
+            clips[:, k, 5] = sin * base_cos - cos * base_sin
+            clips[:, k, 6] = routed[:, k]
+        samples = self.wire_points_batch(frame)[:, self.wire_samples]  # (N, WIRE_SAMPLES, 3)
         return np.concatenate(
             [
-                robot.proprioception(model, data),
-                tcp,
-                quat_near(tcp_rot, robot.home_tcp_rot),
-                np.array(self.pad_contacts(model, data, self.assembly.wire_contacts), float),
-                clips.ravel(),
-                self.to_base(data, samples).ravel(),
-                self.to_base(data, data.xpos[model.body(self.assembly.clamp).id]),
-                self.to_base(data, data.xpos[self.assembly.plug_id]),
-            ]
+                self.robot_state_batch(frame),
+                self.pads_touching(frame).astype(float),
+                clips.reshape(n, -1),
+                *(self.to_base_batch(frame, samples[:, k]) for k in range(WIRE_SAMPLES)),
+                self.to_base_batch(frame, frame.xpos[:, self.clamp_id]),
+                self.to_base_batch(frame, frame.xpos[:, self.assembly.plug_id]),
+            ],
+            axis=1,
         )
 
     # -- reward -----------------------------------------------------------------------------
-    def reward_terms(self, model, data, action) -> dict[str, float]:
-        routed, clip, slot, nearest = self._target(model, data)
-        held = all(self.pad_contacts(model, data, self.assembly.wire_contacts))
-        tcp = data.site_xpos[self.tcp_site]
-        clip_top = clip.pos[2] + clip.config.base_height + clip.config.slot_depth
-        horizontal = norm((nearest - slot)[:2])
+    def reward_batch(self, frame, trackers, actions) -> dict[str, np.ndarray]:
+        routed = self.routed_batch(frame)
+        index, slot, nearest = self._target_batch(frame)
+        held = self.pads_touching(frame).all(axis=1).astype(float)
+        tcp = frame.site_xpos[:, self.tcp_site]
+        cfg = self.clip_config
+        clip_top = slot[:, 2] + cfg.slot_depth
+        horizontal = norms((nearest - slot)[:, :2])
         return {
-            "reach": shaped(norm(tcp - nearest), 0.1),
-            "grasp": float(held),
-            "lift": float(held) * float(np.clip((nearest[2] - clip_top) / 0.02 + 1.0, 0, 1)),
-            "over_slot": float(held) * shaped(horizontal, 0.02),
-            "routed": float(np.mean(routed)),
-            "all_routed": float(all(routed)),
-            "action": float(np.sum(np.square(action))),
-            "collision": float(self.gripper_collision(model, data)),
+            "reach": shaped(norms(tcp - nearest), 0.1),
+            "grasp": held,
+            "lift": held * np.clip((nearest[:, 2] - clip_top) / 0.02 + 1.0, 0, 1),
+            "over_slot": held * shaped(horizontal, 0.02),
+            "routed": np.mean(routed, axis=1),
+            "all_routed": routed.all(axis=1).astype(float),
+            "action": np.sum(np.square(actions), axis=1),
+            "collision": self.table_collision(frame).astype(float),
         }
 
-    def evaluate(self, model, data, diagnostics: bool = True) -> dict[str, float | bool]:
-        routed = self.routed(model, data)
-        return {
-            "success": all(routed),
-            "clips_routed": int(sum(routed)),
-            **(self.diagnostics(model, data) if diagnostics else {}),
-        }
+    def evaluate_batch(self, frame, data_of) -> dict[str, np.ndarray]:
+        routed = self.routed_batch(frame)
+        return {"success": routed.all(axis=1), "clips_routed": np.sum(routed, axis=1)}

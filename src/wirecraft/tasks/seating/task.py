@@ -50,10 +50,11 @@ from wirecraft.assets.assembly import WireAssembly
 from wirecraft.assets.connectors import make_connector
 from wirecraft.assets.fixtures import ChannelConfig, add_segmented_channel
 from wirecraft.assets.fixtures.channels import MAX_BEND, NUM_SEGMENTS
-from wirecraft.geometry import quat_near, rot_z
-from wirecraft.numerics import norm
+from wirecraft.geometry import quats_near, rot_z
+from wirecraft.numerics import norm, sum_in_order
 from wirecraft.sensors import body_geom_ids
 from wirecraft.tasks.base import TASKS, Task, shaped
+from wirecraft.tasks.frame import Frame, norms
 from wirecraft.tasks.seating.options import SeatingOptions
 
 CHANNEL_ENTRY = (0.20, 0.0, 0.0)
@@ -84,6 +85,8 @@ class SeatingTask(Task):
         "action": -0.1,
         "collision": -10.0,
     }
+
+    held_body = "plug"
 
     Options = SeatingOptions
     demo_options = {"channel": "straight"}
@@ -138,6 +141,10 @@ class SeatingTask(Task):
         self.placed = self.channel.placed(self.bends)
         self.fixture_contacts = self.channel_contacts
         self.held_contacts = self.assembly.plug_contacts
+        self.segment_bodies = [model.body(f"channel_seg{i}").id for i in range(NUM_SEGMENTS)]
+        self.clamp_id = model.body(self.assembly.clamp).id
+        count = self.assembly.wire.num_points
+        self.wire_samples = np.linspace(0, count - 1, WIRE_SAMPLES).round().astype(int)
 
     # -- episode ----------------------------------------------------------------------------
     def sample_bends(self, rng) -> tuple[float, ...]:
@@ -185,71 +192,90 @@ class SeatingTask(Task):
         return np.asarray(pts)
 
     def fraction_inside(self, model, data) -> float:
-        return self.placed.fraction_inside(self.wire_points(model, data))
+        return float(self.fraction_inside_batch(self.frame_of(data))[0])
+
+    def fraction_inside_batch(self, frame: Frame) -> np.ndarray:
+        """(N,) fraction of the wire's length inside the channel: over the floor, between the
+        walls of some segment, below their tops (edges judged by their midpoints, weighted by
+        their length); the segments' poses are read from the simulation."""
+        return frame.cached("fraction_inside", lambda: self._fraction_inside_batch(frame))
+
+    def _fraction_inside_batch(self, frame: Frame) -> np.ndarray:
+        cfg = self.channel.config
+        points = self.wire_points_batch(frame)
+        edges = points[:, 1:] - points[:, :-1]
+        lengths = norm(edges)
+        mids = points[:, :-1] + edges / 2
+        height = mids[..., 2] - frame.xpos[:, self.segment_bodies[0], 2][:, None]
+        inside = np.zeros(lengths.shape, bool)
+        for body in self.segment_bodies:
+            d = mids[..., :2] - frame.xpos[:, body, None, :2]
+            cos = frame.xmat[:, body, 0][:, None]  # the segments turn about z only
+            sin = frame.xmat[:, body, 3][:, None]
+            u = d[..., 0] * cos + d[..., 1] * sin
+            v = -d[..., 0] * sin + d[..., 1] * cos
+            inside |= (u >= 0) & (u <= cfg.segment_length) & (np.abs(v) <= cfg.inner_width / 2)
+        inside &= (height >= cfg.floor) & (height <= cfg.floor + cfg.wall_height)
+        total = sum_in_order(lengths)
+        within = sum_in_order(np.where(inside, lengths, 0.0))
+        return np.where(total > 0, within / np.where(total > 0, total, 1.0), 0.0)
 
     # -- observation ------------------------------------------------------------------------
-    def privileged_state(self, model, data) -> np.ndarray:
-        robot = self.robot
-        tcp = self.to_base(data, data.site_xpos[self.tcp_site])
-        tcp_rot = self.rot_to_base(data, data.site_xmat[self.tcp_site].reshape(3, 3))
-        plug_pos, plug_rot = self.assembly.plug_pose(data)
-        points = self.wire_points(model, data)
-        samples = points[np.linspace(0, len(points) - 1, WIRE_SAMPLES).round().astype(int)]
-        joints = self._channel_joints()
+    def observe_batch(self, frame: Frame) -> np.ndarray:
+        plug = self.assembly.plug_id
+        plug_rot = self.rot_to_base_batch(frame, frame.rot("xmat", plug))
+        # the plug lies along the channel: its heading fixes the quaternion's sign
+        along = self.rot_to_base_batch(frame, np.broadcast_to(rot_z(CHANNEL_YAW), plug_rot.shape))
+        samples = self.wire_points_batch(frame)[:, self.wire_samples]
+        joints = self.channel_joints_batch(frame)
         return np.concatenate(
             [
-                robot.proprioception(model, data),
-                tcp,
-                quat_near(tcp_rot, robot.home_tcp_rot),
-                np.array(self.pad_contacts(model, data, self.assembly.plug_contacts), float),
-                self.to_base(data, plug_pos),
-                # the plug lies along the channel: its heading fixes the quaternion's sign
-                quat_near(
-                    self.rot_to_base(data, plug_rot), self.rot_to_base(data, rot_z(CHANNEL_YAW))
-                ),
-                self.to_base(data, data.xpos[model.body(self.assembly.clamp).id]),
-                self.to_base(data, samples).ravel(),
-                self.to_base(data, joints).ravel(),
-                [self.placed.fraction_inside(points)],
-            ]
+                self.robot_state_batch(frame),
+                self.pads_touching(frame).astype(float),
+                self.to_base_batch(frame, frame.xpos[:, plug]),
+                quats_near(plug_rot, along),
+                self.to_base_batch(frame, frame.xpos[:, self.clamp_id]),
+                *(self.to_base_batch(frame, samples[:, k]) for k in range(WIRE_SAMPLES)),
+                *(self.to_base_batch(frame, joints[:, k]) for k in range(joints.shape[1])),
+                self.fraction_inside_batch(frame)[:, None],
+            ],
+            axis=1,
         )
 
-    def _channel_joints(self) -> np.ndarray:
-        """(6, 3) world points where the segments meet (and the two ends), at floor height."""
-        cfg = self.placed.config
-        local = cfg.centerline(samples_per_segment=1)
-        c, s = math.cos(self.placed.yaw), math.sin(self.placed.yaw)
-        world = local.copy()
-        world[:, 0] = c * local[:, 0] - s * local[:, 1] + self.placed.pos[0]
-        world[:, 1] = s * local[:, 0] + c * local[:, 1] + self.placed.pos[1]
-        world[:, 2] += self.placed.pos[2]
-        return world
+    def channel_joints_batch(self, frame: Frame) -> np.ndarray:
+        """(N, 6, 3) world points where the segments meet (and the two ends), at floor
+        height."""
+        cfg = self.channel.config
+        starts = frame.xpos[:, self.segment_bodies] + [0.0, 0.0, cfg.floor]
+        last = self.segment_bodies[-1]
+        direction = np.stack(
+            [frame.xmat[:, last, 0], frame.xmat[:, last, 3], np.zeros(frame.size)], axis=1
+        )
+        end = starts[:, -1] + cfg.segment_length * direction
+        return np.concatenate([starts, end[:, None]], axis=1)
 
     # -- reward -----------------------------------------------------------------------------
-    def reward_terms(self, model, data, action) -> dict[str, float]:
-        held = all(self.pad_contacts(model, data, self.assembly.plug_contacts))
-        tcp = data.site_xpos[self.tcp_site]
-        grasp_point = data.site_xpos[self.assembly.grasp_site]
-        fraction = self.fraction_inside(model, data)
-        wall_top = self.placed.config.floor + self.placed.config.wall_height
-        plug_z = data.xpos[self.assembly.plug_id][2]
+    def reward_batch(self, frame, trackers, actions) -> dict[str, np.ndarray]:
+        held = self.pads_touching(frame).all(axis=1).astype(float)
+        tcp = frame.site_xpos[:, self.tcp_site]
+        grasp_point = frame.site_xpos[:, self.assembly.grasp_site]
+        fraction = self.fraction_inside_batch(frame)
+        cfg = self.channel.config
+        wall_top = frame.xpos[:, self.segment_bodies[0], 2] + cfg.floor + cfg.wall_height
+        plug_z = frame.xpos[:, self.assembly.plug_id, 2]
         return {
-            "reach": shaped(norm(tcp - grasp_point), 0.1),
-            "grasp": float(held),
-            "lift": float(held) * float(np.clip((plug_z - wall_top) / 0.03, 0.0, 1.0)),
+            "reach": shaped(norms(tcp - grasp_point), 0.1),
+            "grasp": held,
+            "lift": held * np.clip((plug_z - wall_top) / 0.03, 0.0, 1.0),
             "inside": fraction,
-            "seated": float(fraction >= SUCCESS_FRACTION),
-            "action": float(np.sum(np.square(action))),
-            "collision": float(self.gripper_collision(model, data)),
+            "seated": (fraction >= SUCCESS_FRACTION).astype(float),
+            "action": np.sum(np.square(actions), axis=1),
+            "collision": self.table_collision(frame).astype(float),
         }
 
-    def evaluate(self, model, data, diagnostics: bool = True) -> dict[str, float | bool]:
-        fraction = self.fraction_inside(model, data)
-        return {
-            "success": fraction >= SUCCESS_FRACTION,
-            "fraction_inside": fraction,
-            **(self.diagnostics(model, data) if diagnostics else {}),
-        }
+    def evaluate_batch(self, frame, data_of) -> dict[str, np.ndarray]:
+        fraction = self.fraction_inside_batch(frame)
+        return {"success": fraction >= SUCCESS_FRACTION, "fraction_inside": fraction}
 
     def get_state(self) -> dict:
         return {"bends": self.bends}
