@@ -424,9 +424,12 @@ class Task(ABC):
         return np.any(frame.sensordata[:, self.fixture_sensors] > 0, axis=1)
 
     def to_base_batch(self, frame: Frame, points: np.ndarray) -> np.ndarray:
-        """World points (N, 3) in the robot base frame."""
+        """World points, (N, 3) or (N, P, 3), in the robot base frame (each point with the
+        same arithmetic either way)."""
         origin = frame.site_xpos[:, self.base_site]
         rot = frame.rot("site_xmat", self.base_site)
+        if points.ndim == 3:
+            return matmul(points - origin[:, None, :], rot)
         return matmul((points - origin)[:, None, :], rot)[:, 0, :]
 
     def rot_to_base_batch(self, frame: Frame, rots: np.ndarray) -> np.ndarray:

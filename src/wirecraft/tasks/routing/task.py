@@ -263,23 +263,23 @@ class RoutingTask(Task):
         n = frame.size
         base_rot = frame.rot("site_xmat", self.base_site)
         base_cos, base_sin = base_rot[:, 0, 0], base_rot[:, 1, 0]
-        routed = self.routed_batch(frame)
+        count = len(self.clip_bodies)
+        slots = frame.xpos[:, self.clip_bodies] + [0.0, 0.0, self.clip_config.base_height]
+        cos, sin = frame.xmat[:, self.clip_bodies, 0], frame.xmat[:, self.clip_bodies, 3]
+        base_cos, base_sin = base_cos[:, None], base_sin[:, None]
         clips = np.zeros((n, MAX_CLIPS, 7))
-        for k, body in enumerate(self.clip_bodies):
-            slot = frame.xpos[:, body] + [0.0, 0.0, self.clip_config.base_height]
-            cos, sin = frame.xmat[:, body, 0], frame.xmat[:, body, 3]
-            clips[:, k, 0] = 1.0
-            clips[:, k, 1:4] = self.to_base_batch(frame, slot)
-            clips[:, k, 4] = cos * base_cos + sin * base_sin  # the slot's yaw less the base's
-            clips[:, k, 5] = sin * base_cos - cos * base_sin
-            clips[:, k, 6] = routed[:, k]
+        clips[:, :count, 0] = 1.0
+        clips[:, :count, 1:4] = self.to_base_batch(frame, slots)
+        clips[:, :count, 4] = cos * base_cos + sin * base_sin  # the slot's yaw less the base's
+        clips[:, :count, 5] = sin * base_cos - cos * base_sin
+        clips[:, :count, 6] = self.routed_batch(frame)
         samples = self.wire_points_batch(frame)[:, self.wire_samples]  # (N, WIRE_SAMPLES, 3)
         return np.concatenate(
             [
                 self.robot_state_batch(frame),
                 self.pads_touching(frame).astype(float),
                 clips.reshape(n, -1),
-                *(self.to_base_batch(frame, samples[:, k]) for k in range(WIRE_SAMPLES)),
+                self.to_base_batch(frame, samples).reshape(n, -1),
                 self.to_base_batch(frame, frame.xpos[:, self.clamp_id]),
                 self.to_base_batch(frame, frame.xpos[:, self.assembly.plug_id]),
             ],
