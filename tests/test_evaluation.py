@@ -260,3 +260,41 @@ def test_episode_steps_sets_the_horizon_in_control_steps(tmp_path):
     payload = json.loads(out.read_text())
     assert payload["protocol"]["episode_steps"] == 90
     assert payload["episodes"][0]["steps"] == 90
+
+
+def test_several_policies_are_reported_across_runs(tmp_path, capsys):
+    """``--policy A B``: each run is the single evaluation of that policy on the same seeds,
+    and the across-runs line is the mean and population std of the runs' means."""
+    common = ["eval", "--task", "insertion", "--seeds", "2", "--episodes", "1", "--quiet"]
+    out = tmp_path / "across.json"
+    assert cli.main([*common, "--policy", "zero", "scripted", "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    singles = []
+    for policy in ("zero", "scripted"):
+        path = tmp_path / f"{policy}.json"
+        assert cli.main([*common, "--policy", policy, "--json", str(path)]) == 0
+        singles.append(json.loads(path.read_text()))
+    assert doc["policies"] == ["zero", "scripted"]
+    for run, single in zip(doc["runs"], singles, strict=True):
+        assert run["metrics"] == single["metrics"]
+        assert run["episodes"] == single["episodes"]
+    for name, value in doc["across_runs"].items():
+        means = [single["metrics"][name]["mean"] for single in singles]
+        assert value["per_run"] == means
+        assert value["mean"] == pytest.approx(np.mean(means))
+        assert value["std"] == pytest.approx(np.std(means))
+    assert doc["across_runs"]["success"]["per_run"] == [0.0, 1.0]  # zero never inserts
+    assert "across 2 runs" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--policy", "zero", "zero"], "given twice"),
+        (["--policy", "zero", "scripted", "--label", "x"], "--label"),
+        (["--policy", "zero", "no/such/run"], "neither"),
+    ],
+)
+def test_several_policies_refuse_what_applies_to_one(extra, message, capsys):
+    assert cli.main(["eval", "--task", "insertion", *extra]) == 2
+    assert message in capsys.readouterr().err

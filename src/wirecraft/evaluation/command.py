@@ -22,9 +22,11 @@ def configure(p: argparse.ArgumentParser, add_task_args) -> None:
     add_task_args(p)
     p.add_argument(
         "--policy",
-        default="scripted",
+        nargs="+",
+        default=["scripted"],
         help="scripted, random, zero, an RL run directory (wirecraft_rl.json) or a LeRobot "
-        "pretrained-policy directory",
+        "pretrained-policy directory; several: one policy trained with several seeds, each "
+        "evaluated on the same seeds, reported as mean +/- std across them",
     )
     p.add_argument(
         "--seeds",
@@ -212,18 +214,88 @@ def print_summary(payload: dict, seconds: float) -> None:
     print(f"  ({seconds:.0f} s)")
 
 
+def check_policy(args, policy: str) -> None:
+    """Usage errors for ``policy`` (one of ``--policy``'s values) and the flags that depend on
+    what it is."""
+    from wirecraft.cli import only_with, usage_error
+    from wirecraft.evaluation.policies import BUILTIN_POLICIES, _lerobot_config
+
+    if policy in BUILTIN_POLICIES:
+        only_with(args, "a learned policy (an RL run or LeRobot directory)", "--device")
+    elif not Path(policy).exists():
+        raise usage_error(
+            "--policy",
+            f"{policy!r} is neither {', '.join(BUILTIN_POLICIES)} nor an existing directory",
+        )
+    if policy in BUILTIN_POLICIES or _lerobot_config(Path(policy)) is None:
+        only_with(args, "a LeRobot policy directory", "--fps")
+
+
+def print_across_runs(policies: list[str], across: dict) -> None:
+    print(f"across {len(policies)} runs (mean +/- population std of each run's mean):")
+    for name, value in across.items():
+        if value["mean"] is None:
+            continue
+        per_run = ", ".join("-" if v is None else f"{100 * v:.1f}" for v in value["per_run"])
+        print(
+            f"  {name:15s} {100 * value['mean']:5.1f} +/- {100 * value['std']:4.1f} %"
+            f"   (per run: {per_run})"
+        )
+
+
+def run_across(args, family: str, env_kwargs: dict, evaluate, write_json) -> int:
+    """``--policy A B C``: each evaluated on the same seeds, then aggregated across them."""
+    from wirecraft.cli import only_with, usage_error
+    from wirecraft.evaluation import sweep as sweep_mod
+    from wirecraft.evaluation.policies import BUILTIN_POLICIES
+    from wirecraft.evaluation.protocol import aggregate_runs
+
+    policies = args.policy
+    one = "one --policy"
+    only_with(args, one, "--traces", "--video", "--report", "--label", "--checkpoints")
+    only_with(args, one, "--select", "--curve")
+    for policy in policies:
+        check_policy(args, policy)
+        if policy not in BUILTIN_POLICIES and sweep_mod.is_imitation_run(policy):
+            raise usage_error(
+                "--policy", f"{policy} is an imitation run (a checkpoint sweep); give checkpoints"
+            )
+    if len(set(policies)) != len(policies):
+        raise usage_error("--policy", f"a policy is given twice: {policies}")
+    start = time.time()
+    payloads = []
+    for policy in policies:
+        payload = evaluate(policy)
+        print_summary(payload, time.time() - start)
+        payloads.append(payload)
+    across = aggregate_runs(payloads)
+    print_across_runs(policies, across)
+    write_json(
+        args.json,
+        {
+            "task": family,
+            "env_kwargs": env_kwargs,
+            "policies": list(policies),
+            "across_runs": across,
+            "runs": payloads,
+        },
+    )
+    return 0
+
+
 def run(args, task_kwargs, write_json) -> int:
     from wirecraft.cli import only_with, usage_error
     from wirecraft.envs.env import CONTROL_HZ, steps_per_frame
     from wirecraft.evaluation import report as report_mod
     from wirecraft.evaluation import sweep as sweep_mod
     from wirecraft.evaluation.policies import BUILTIN_POLICIES as BUILT_IN_POLICIES
-    from wirecraft.evaluation.policies import _lerobot_config
     from wirecraft.evaluation.protocol import run_evaluation
     from wirecraft.evaluation.traces import write_traces
     from wirecraft.tasks import TASKS
 
     family, env_kwargs = task_kwargs(args)
+    policies = args.policy
+    args.policy = policies[0]
     run_dir = args.policy not in BUILT_IN_POLICIES and sweep_mod.is_imitation_run(args.policy)
     if not run_dir:
         only_with(args, "--policy RUN (an imitation run folder with checkpoints/)", "--checkpoints")
@@ -246,15 +318,7 @@ def run(args, task_kwargs, write_json) -> int:
     if args.episode_steps is not None:
         only_with(args, "no --episode-steps (give one length)", "--episode-seconds")
         episode_seconds = args.episode_steps / CONTROL_HZ
-    if args.policy in BUILT_IN_POLICIES:
-        only_with(args, "a learned policy (an RL run or LeRobot directory)", "--device")
-    elif not Path(args.policy).exists():
-        raise usage_error(
-            "--policy",
-            f"{args.policy!r} is neither {', '.join(BUILT_IN_POLICIES)} nor an existing directory",
-        )
-    if args.policy in BUILT_IN_POLICIES or _lerobot_config(Path(args.policy)) is None:
-        only_with(args, "a LeRobot policy directory", "--fps")
+    check_policy(args, args.policy)
     if args.fps is not None:
         try:
             steps_per_frame(args.fps)
@@ -273,6 +337,28 @@ def run(args, task_kwargs, write_json) -> int:
     policy_kwargs = {"device": device} if device != "cpu" else {}
     if args.fps is not None:
         policy_kwargs["fps"] = args.fps
+    if len(policies) > 1:
+        args.policy = policies
+
+        def evaluate_one(policy):
+            return run_evaluation(
+                family,
+                policy,
+                seeds=args.seeds,
+                episodes=args.episodes,
+                workers=args.workers,
+                seed=args.seed,
+                episode_seconds=episode_seconds,
+                retain_force=retain_force,
+                batch=args.batch,
+                ray_address=args.ray,
+                progress=not args.quiet,
+                policy_kwargs=policy_kwargs or None,
+                torch_threads=args.torch_threads,
+                **env_kwargs,
+            ).payload
+
+        return run_across(args, family, env_kwargs, evaluate_one, write_json)
     start = time.time()
     if run_dir:
         checkpoints = sweep_mod.choose(

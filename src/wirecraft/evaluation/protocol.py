@@ -344,6 +344,22 @@ def aggregate(task: str, episodes: list[dict], num_seeds: int) -> dict[str, dict
     return metrics
 
 
+def aggregate_runs(payloads: list[dict]) -> dict[str, dict]:
+    """metric -> {"mean", "std", "per_run"} across several runs evaluated on the same seeds
+    (e.g. one policy trained with three seeds): each run's mean rate over its seeds, then the
+    mean and population std over the runs."""
+    metrics = {}
+    for name in payloads[0]["metrics"]:
+        per_run = [p["metrics"][name]["mean"] for p in payloads]
+        known = [v for v in per_run if v is not None]
+        metrics[name] = {
+            "mean": _clean(float(np.mean(known))) if known else None,
+            "std": _clean(float(np.std(known))) if known else None,
+            "per_run": per_run,
+        }
+    return metrics
+
+
 def resolve_env_kwargs(task: str, policy, env_kwargs: dict) -> dict:
     """The user's environment keywords merged with what the policy needs; a conflict (e.g.
     ``control='joint'`` for the scripted insertion expert) is an error."""
