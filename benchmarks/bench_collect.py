@@ -1,6 +1,6 @@
 """Demonstrations per hour of ``wirecraft collect`` (insertion, Ethernet, two cameras).
 
-    python benchmarks/bench_collect.py [--episodes 12] [--workers 2] [--image-size 224]
+    python benchmarks/bench_collect.py [--episodes 12] [--workers 2] [--batch 4] [--image-size 224]
         [--fps 30] [--json PATH]
 
 Collects ``--episodes`` scripted insertion demonstrations into a temporary dataset exactly as
@@ -78,6 +78,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=12)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--batch", type=int, default=None, help="episodes per worker side by side")
     parser.add_argument("--image-size", type=int, default=224)
     parser.add_argument("--fps", type=int, default=30)
     parser.add_argument("--vcodec", default="h264", help="h264 or libsvtav1")
@@ -99,7 +100,8 @@ def main() -> None:
         vcodec=args.vcodec,
     )
     with tempfile.TemporaryDirectory() as tmp:
-        report = collect(settings, Path(tmp) / "ds", args.episodes, workers=args.workers)
+        batch = {} if args.batch is None else {"batch": args.batch}
+        report = collect(settings, Path(tmp) / "ds", args.episodes, workers=args.workers, **batch)
     main_cpu = time.process_time() - main_cpu0
     children = resource.getrusage(resource.RUSAGE_CHILDREN)  # the pool's workers, joined
     workers_cpu = (children.ru_utime - children0.ru_utime) + (
@@ -145,7 +147,8 @@ def main() -> None:
     }
     print(
         f"insertion/ethernet, {args.image_size}x{args.image_size} side + wrist cameras, "
-        f"{args.fps} fps, {args.vcodec}, {args.workers} workers: {report.new_episodes} episodes "
+        f"{args.fps} fps, {args.vcodec}, {args.workers} workers, "
+        f"batch {args.batch or 'default'}: {report.new_episodes} episodes "
         f"({report.success_rate:.0%} success, {report.new_attempts} attempts)"
     )
     print(f"CPU seconds per saved episode ({frames_per_episode:.0f} frames): {episode_cpu:.2f}")

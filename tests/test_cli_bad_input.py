@@ -333,10 +333,10 @@ def test_failed_collect_start_leaves_nothing(tmp_path, monkeypatch, capsys):
 
     collect = importlib.import_module("wirecraft.datasets.collect")
 
-    def broken(settings, attempt):
+    def broken(settings, attempts, slots):
         raise RuntimeError("renderer failed")
 
-    monkeypatch.setattr(collect, "run_episode", broken)
+    monkeypatch.setattr(collect, "run_episodes", broken)
     out = tmp_path / "ds"
     argv = ["collect", "--out", str(out), "--episodes", "1", "--workers", "0"]
     assert main(argv) == 2

@@ -28,6 +28,7 @@ from wirecraft.datasets.collect import (
     collect,
     episode_sources,
     run_episode,
+    run_episodes,
     summary_lines,
 )
 from wirecraft.datasets.recorder import Episode
@@ -680,3 +681,65 @@ def test_existing_folder_needs_resume_and_the_same_settings(reference, tmp_path,
         assert main([*CLI_ARGS, "--out", str(old), "--resume"]) == 2
         assert f"collected on state revision {revision or 1};" in capsys.readouterr().err
     assert load(old).num_episodes == 2
+
+
+def assert_same_episode(a: Episode, b: Episode) -> None:
+    assert (a.seed, a.success, a.control_steps, a.info["end"]) == (
+        b.seed,
+        b.success,
+        b.control_steps,
+        b.info["end"],
+    )
+    for name in ("state", "action", "cartesian_state", "env_action"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    for camera in a.images:
+        assert np.array_equal(a.images[camera], b.images[camera]), camera
+    for flag in a.flags:
+        assert np.array_equal(a.flags[flag], b.flags[flag]), flag
+
+
+@pytest.mark.parametrize(
+    "task, options",
+    [("insertion", {"connector": "ethernet"}), ("routing", {"num_clips": 1}), ("seating", {})],
+)
+def test_episodes_stepped_side_by_side_are_the_single_episodes(task, options):
+    """``run_episodes`` (a worker's vector environment, a finished attempt's slot taking the
+    next) gives each attempt the episode ``run_episode`` gives it alone."""
+    settings = CollectSettings(task=task, env_kwargs=options, image_size=32, seed=SEED)
+    attempts = [0, 1, 2, 3]
+    side_by_side = run_episodes(settings, attempts, 2)
+    for attempt, episode in zip(attempts, side_by_side, strict=True):
+        assert_same_episode(episode, run_episode(settings, attempt))
+
+
+@pytest.mark.parametrize("doomed_attempt", [1, 2], ids=["first-slots", "freed-slot"])
+def test_a_reset_that_fails_in_a_run_of_episodes_fails_that_attempt_only(
+    monkeypatch, doomed_attempt
+):
+    """An attempt whose scene keeps diverging while settling is a failed attempt, as alone;
+    the attempts around it are unchanged (whether it was among the first attempts, reset
+    together, or went into a slot another attempt left)."""
+    from wirecraft.envs.vector import WireCraftVectorEnv
+
+    settings = CollectSettings(
+        task="insertion", env_kwargs={"connector": "ethernet"}, image_size=32, seed=SEED
+    )
+    doomed = settings.episode_seed(doomed_attempt)
+    reset = WireCraftVectorEnv.reset
+
+    def failing_reset(self, *, seed=None, options=None):
+        mask = (options or {}).get("reset_mask", np.ones(self.num_envs, bool))
+        if seed is not None and any(s == doomed for s, m in zip(seed, mask, strict=True) if m):
+            raise RuntimeError("the scene diverged while settling at reset, 3 times in a row")
+        return reset(self, seed=seed, options=options)
+
+    monkeypatch.setattr(WireCraftVectorEnv, "reset", failing_reset)
+    attempts = [0, 1, 2, 3]
+    episodes = run_episodes(settings, attempts, 2)
+    failed = episodes[doomed_attempt]
+    assert len(failed) == 0 and not failed.success
+    assert failed.info["end"].startswith("reset failed")
+    monkeypatch.setattr(WireCraftVectorEnv, "reset", reset)
+    for attempt in attempts:
+        if attempt != doomed_attempt:
+            assert_same_episode(episodes[attempt], run_episode(settings, attempt))

@@ -584,6 +584,13 @@ def _collect_args(p):
         default=None,
         help="default: 2 * episodes + 10",
     )
+    p.add_argument(
+        "--batch",
+        type=number(1, 256, integer=True),
+        default=None,
+        help="episodes each worker steps side by side (default 4; the dataset does not depend "
+        "on it)",
+    )
     p.add_argument("--json", metavar="PATH", type=output_file, help="write the report as JSON")
     p.add_argument(
         "--policy",
@@ -604,6 +611,7 @@ SCRIPTED_ONLY = (
     "--success-hold",
     "--commit-every",
     "--max-attempts",
+    "--batch",
 )
 
 
@@ -620,6 +628,7 @@ def cmd_collect(args) -> int:
 
         args.task = default_family()
     from wirecraft.datasets.collect import (
+        DEFAULT_BATCH,
         DEFAULT_IMAGE_SIZE,
         CollectSettings,
         collect,
@@ -658,6 +667,7 @@ def cmd_collect(args) -> int:
         resume=args.resume,
         commit_every=args.commit_every or 10,
         max_attempts=args.max_attempts,
+        batch=DEFAULT_BATCH if args.batch is None else args.batch,
     )
     for line in summary_lines(report):
         print(line)

@@ -13,7 +13,10 @@
   the joint targets after the last control step of its period).
 - Workers: ``workers = 0`` runs in this process; ``N >= 1`` starts N processes (spawn); with
   ``ray_address`` (``"local"``: a local Ray instance with ``workers`` CPUs) Ray tasks generate
-  the episodes.  This process is the only writer (``EpisodeWriter``).
+  the episodes.  This process is the only writer (``EpisodeWriter``).  Each task is a run of
+  up to ``batch`` consecutive attempts that the worker steps side by side in one vector
+  environment (``run_episodes``: a finished attempt's slot takes the next); a vector
+  environment's row is a single environment, so the episodes do not depend on ``batch``.
 - SIGINT / SIGTERM: the episode being written is finished, the dataset is committed and
   finalized (loadable), and ``collect`` returns with ``interrupted`` set; a second signal
   stops at once (``--resume`` then rolls back to the last commit).  A hard kill loses at most
@@ -47,6 +50,8 @@ POLL_SECONDS = 0.2
 # An attempt without a result after this long means a worker died (a crashed process's task
 # is lost: multiprocessing would wait for it forever).
 ATTEMPT_TIMEOUT_S = 900.0
+# Episodes a worker steps side by side in one vector environment (``run_episodes``).
+DEFAULT_BATCH = 4
 
 
 def _default_family() -> str:
@@ -236,6 +241,178 @@ def run_episode(settings: CollectSettings | dict, attempt: int) -> Episode:
     return episode
 
 
+# -- several episodes side by side (runs in a worker) --------------------------------------------
+_BATCH_CACHE: dict[str, tuple] = {}  # (settings, slots) -> (vector env, renderer, recorders)
+
+
+def _batch_tools(settings: CollectSettings, slots: int):
+    key = json.dumps([settings.to_dict(), slots], sort_keys=True)
+    if key not in _BATCH_CACHE:
+        import wirecraft
+        from wirecraft.render import FastRenderer
+
+        while _BATCH_CACHE:  # one configuration at a time
+            venv, renderer, _ = _BATCH_CACHE.pop(next(iter(_BATCH_CACHE)))
+            venv.close()
+            renderer.close()
+        # The recorder reads the success flags only: no per-environment force diagnostics.
+        venv = wirecraft.make_vec(
+            settings.task,
+            slots,
+            threads=1,
+            obs_mode="state",
+            image_size=settings.image_size,
+            diagnostics=False,
+            **settings.env_kwargs,
+        )
+        renderer = FastRenderer(venv.model, settings.image_size, settings.image_size)
+        recorders = [
+            EpisodeRecorder(env, settings.fps, source="scripted", renderer=renderer)
+            for env in venv.envs
+        ]
+        _BATCH_CACHE[key] = (venv, renderer, recorders)
+    return _BATCH_CACHE[key]
+
+
+def _row(infos: dict, i: int) -> dict:
+    """Environment ``i``'s info of a vector step or reset (the final step's for an
+    environment that ended, without its reset's keys)."""
+    return {
+        key: value[i]
+        for key, value in infos.items()
+        if not key.startswith(("_", "reset/"))
+        and key not in ("final_obs", "final_info")
+        and (f"_{key}" not in infos or infos[f"_{key}"][i])
+    }
+
+
+def run_episodes(settings: CollectSettings | dict, attempts: list[int], slots: int) -> list:
+    """Episode attempts ``attempts`` (in this order), up to ``slots`` at a time in one vector
+    environment: each attempt takes a free slot (its reset seed, its own expert and recorder),
+    the slots step together, and a finished attempt's slot takes the next one.  A vector
+    environment's row is a single environment, so each episode is the one ``run_episode``
+    gives for its attempt; physics + expert time is shared out among the running slots."""
+    from wirecraft.envs.env import CONTROL_HZ
+    from wirecraft.experts import expert_class
+
+    if isinstance(settings, dict):
+        settings = CollectSettings.from_dict(settings)
+    slots = max(1, min(int(slots), len(attempts)))
+    venv, _, recorders = _batch_tools(settings, slots)
+    expert_cls = expert_class(settings.task)
+    hold_steps = int(round(settings.success_hold_s * CONTROL_HZ))
+    queue = deque(int(a) for a in attempts)
+    episodes: dict[int, Episode] = {}
+    running: list[dict | None] = [None] * slots
+    ready = np.zeros(slots, bool)  # the slot holds a valid state (it can be stepped)
+    obs = None
+
+    def failed_reset(i: int, attempt: int, seed: int, err: Exception) -> None:
+        recorders[i].clear(seed)
+        zero = dict.fromkeys(("physics_s", "render_s", "physics_cpu_s", "render_cpu_s"), 0.0)
+        info = {"attempt": attempt, "end": f"reset failed: {err}", "diverged": True}
+        episodes[attempt] = recorders[i].finish({**info, **zero})
+
+    def begin(i: int, attempt: int, seed: int, info: dict) -> None:
+        recorder = recorders[i]
+        running[i] = {
+            "attempt": attempt,
+            "expert": expert_cls(venv.envs[i], _expert_config(expert_cls, seed), seed=seed),
+            "held": 0,
+            "physics_s": 0.0,
+            "physics_cpu_s": 0.0,
+            "render0": (recorder.render_seconds, recorder.render_cpu_seconds),
+        }
+        recorder.start(info, seed)
+
+    def start(i: int) -> None:
+        """Give slot ``i`` the next attempt whose reset succeeds (none left: it idles)."""
+        nonlocal obs
+        while queue:
+            attempt = queue.popleft()
+            seed = settings.episode_seed(attempt)
+            seeds = [seed] * slots
+            mask = np.zeros(slots, bool)
+            mask[i] = True
+            snapshot = venv.envs[i].get_state() if ready[i] else None
+            try:
+                obs, infos = venv.reset(seed=seeds, options={"reset_mask": mask})
+            except RuntimeError as err:  # the scene diverged while settling
+                failed_reset(i, attempt, seed, err)
+                if snapshot is not None:
+                    venv.set_states([i], [snapshot])
+                continue
+            ready[i] = True
+            begin(i, attempt, seed, _row(infos, i))
+            return
+        if not ready[i] and ready.any():  # never started: idle in another slot's state
+            state = venv.envs[int(np.flatnonzero(ready)[0])].get_state()
+            venv.set_states([i], [state])
+            ready[i] = True
+
+    # The first attempts start together (their settles run in one batch).
+    first = [queue.popleft() for _ in range(slots)]
+    seeds = [settings.episode_seed(a) for a in first]
+    try:
+        obs, infos = venv.reset(seed=seeds)
+    except RuntimeError:  # one of them diverged while settling: start them one by one
+        queue.extendleft(reversed(first))
+        for i in range(slots):
+            start(i)
+    else:
+        ready[:] = True
+        for i, (attempt, seed) in enumerate(zip(first, seeds, strict=True)):
+            begin(i, attempt, seed, _row(infos, i))
+    idle = venv.envs[0].settle_action
+    while any(r is not None for r in running):
+        active = [i for i, r in enumerate(running) if r is not None]
+        render_before = sum(r.render_seconds for r in recorders)
+        render_cpu_before = sum(r.render_cpu_seconds for r in recorders)
+        tic, cpu = time.perf_counter(), time.process_time()
+        actions = np.tile(idle, (slots, 1))
+        for i in active:
+            actions[i] = running[i]["expert"].act(obs[i])[0]
+        obs, _, terminated, truncated, infos = venv.step(actions)
+        ended = []
+        for i in active:
+            info = _row(infos, i)
+            recorder, slot = recorders[i], running[i]
+            recorder.record(actions[i], info)
+            slot["held"] = slot["held"] + 1 if info["success"] else 0
+            if info["diverged"]:
+                ended.append((i, "diverged", info))
+            elif terminated[i] or truncated[i]:
+                ended.append((i, "terminated" if terminated[i] else "time_limit", info))
+            elif hold_steps and slot["held"] >= hold_steps and recorder.at_frame_boundary:
+                ended.append((i, "success_held", info))
+        rendered = sum(r.render_seconds for r in recorders) - render_before
+        rendered_cpu = sum(r.render_cpu_seconds for r in recorders) - render_cpu_before
+        wall = time.perf_counter() - tic - rendered
+        cpu = time.process_time() - cpu - rendered_cpu
+        for i in active:
+            running[i]["physics_s"] += wall / len(active)
+            running[i]["physics_cpu_s"] += cpu / len(active)
+        for i, end, info in ended:
+            slot, recorder = running[i], recorders[i]
+            render0, render_cpu0 = slot["render0"]
+            episode = recorder.finish(
+                {
+                    "attempt": slot["attempt"],
+                    "end": end,
+                    "diverged": bool(info["diverged"]),
+                    "physics_s": slot["physics_s"],
+                    "render_s": recorder.render_seconds - render0,
+                    "physics_cpu_s": slot["physics_cpu_s"],
+                    "render_cpu_s": recorder.render_cpu_seconds - render_cpu0,
+                }
+            )
+            episode.success = bool(episode.success and not info["diverged"])
+            episodes[slot["attempt"]] = episode
+            running[i] = None
+            start(i)
+    return [episodes[int(a)] for a in attempts]
+
+
 # -- the collection ------------------------------------------------------------------------
 @dataclass
 class CollectReport:
@@ -395,13 +572,20 @@ def collect(
     commit_every: int = 10,
     max_attempts: int | None = None,
     progress_bar: bool = True,
+    batch: int = DEFAULT_BATCH,
 ) -> CollectReport:
     """Collect until ``episodes`` episodes are in the dataset at ``out`` (see the module
     docstring); returns the report.  ``max_attempts`` (total, over every run of this dataset;
-    default ``2 * episodes + 10``) bounds the attempts when the expert keeps failing."""
+    default ``2 * episodes + 10``) bounds the attempts when the expert keeps failing.
+    ``batch``: episodes a worker steps side by side (``run_episodes``); the dataset does not
+    depend on it."""
     from tqdm import tqdm
 
-    for name, value, low in (("episodes", episodes, 1), ("workers", workers, 0)):
+    for name, value, low in (
+        ("episodes", episodes, 1),
+        ("workers", workers, 0),
+        ("batch", batch, 1),
+    ):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
     if max_attempts is None:
@@ -458,12 +642,17 @@ def collect(
         # No more attempts in flight than episodes still needed: when the target is reached
         # the pool is terminated, and attempts running then would be wasted work (with the
         # expert's ~100% success, half an episode per worker); a failure frees a place.
+        # Each task is a run of up to ``batch`` consecutive attempts.
         nonlocal submitted
-        limit = min(executor.window, episodes - report.saved)
-        while len(pending) < limit and submitted < max_attempts:
-            handle = executor.submit(run_episode, settings_dict, submitted)
-            pending.append((submitted, handle, time.monotonic()))
-            submitted += 1
+        while len(pending) < executor.window and submitted < max_attempts:
+            in_flight = sum(len(run) for run, _, _ in pending)
+            size = min(batch, episodes - report.saved - in_flight, max_attempts - submitted)
+            if size < 1:
+                break
+            run = list(range(submitted, submitted + size))
+            handle = executor.submit(run_episodes, settings_dict, run, batch)
+            pending.append((run, handle, time.monotonic()))
+            submitted += size
 
     try:
         with StopOnSignal(
@@ -488,13 +677,14 @@ def collect(
                 if not pending:
                     report.gave_up = True
                     break
-                attempt, handle, since = pending[0]
+                run, handle, since = pending[0]
                 try:
-                    episode = executor.result(handle, POLL_SECONDS)
-                    if episode is None and time.monotonic() - since > ATTEMPT_TIMEOUT_S:
+                    done_episodes = executor.result(handle, POLL_SECONDS)
+                    timeout = ATTEMPT_TIMEOUT_S * len(run)
+                    if done_episodes is None and time.monotonic() - since > timeout:
                         raise RuntimeError(
-                            f"episode attempt {attempt} gave no result in {ATTEMPT_TIMEOUT_S:.0f}"
-                            " s (did a worker die?)"
+                            f"episode attempts {run[0]}-{run[-1]} gave no result in "
+                            f"{timeout:.0f} s (did a worker die?)"
                         )
                 except Exception:
                     # The writer is consistent: keep what was saved, then report the failure.
@@ -502,51 +692,54 @@ def collect(
                     executor = None
                     writer.close(current_progress())
                     raise
-                if episode is None or stopper.stop:
+                if done_episodes is None or stopper.stop:
                     continue
                 pending.popleft()
-                if pending:  # the next attempt's clock starts when it reaches the head
+                if pending:  # the next run's clock starts when it reaches the head
                     pending[0] = (*pending[0][:2], time.monotonic())
-                next_attempt = attempt + 1
-                report.attempts = next_attempt
-                report.new_attempts += 1
-                for key in ("physics_s", "render_s", "physics_cpu_s", "render_cpu_s"):
-                    timing[key] += episode.info[key]
-                keep = episode.success or settings.keep_failures
-                if keep and len(episode):
-                    tic, cpu = time.perf_counter(), time.process_time()
-                    records.append(
-                        {
-                            "index": report.saved,
-                            "attempt": attempt,
-                            "seed": episode.seed,
-                            "success": episode.success,
-                            "frames": len(episode),
-                            "control_steps": episode.control_steps,
-                            "end": episode.info["end"],
-                        }
-                    )
-                    writer.add_episode(episode, progress=current_progress())
-                    timing["write_s"] += time.perf_counter() - tic
-                    timing["write_cpu_s"] += time.process_time() - cpu
-                    report.saved += 1
-                    report.new_episodes += 1
-                    report.new_frames += len(episode)
-                    if report.first_save_s is None:
-                        report.first_save_s = time.perf_counter() - start
-                    if episode.success:
-                        report.saved_successes += 1
+                for attempt, episode in zip(run, done_episodes, strict=True):
+                    if report.saved >= episodes or stopper.stop:
+                        break  # the rest of the run is made again by a later run
+                    next_attempt = attempt + 1
+                    report.attempts = next_attempt
+                    report.new_attempts += 1
+                    for key in ("physics_s", "render_s", "physics_cpu_s", "render_cpu_s"):
+                        timing[key] += episode.info[key]
+                    keep = episode.success or settings.keep_failures
+                    if keep and len(episode):
+                        tic, cpu = time.perf_counter(), time.process_time()
+                        records.append(
+                            {
+                                "index": report.saved,
+                                "attempt": attempt,
+                                "seed": episode.seed,
+                                "success": episode.success,
+                                "frames": len(episode),
+                                "control_steps": episode.control_steps,
+                                "end": episode.info["end"],
+                            }
+                        )
+                        writer.add_episode(episode, progress=current_progress())
+                        timing["write_s"] += time.perf_counter() - tic
+                        timing["write_cpu_s"] += time.process_time() - cpu
+                        report.saved += 1
+                        report.new_episodes += 1
+                        report.new_frames += len(episode)
+                        if report.first_save_s is None:
+                            report.first_save_s = time.perf_counter() - start
+                        if episode.success:
+                            report.saved_successes += 1
+                        else:
+                            report.saved_failures += 1
+                        bar.update(1)
                     else:
-                        report.saved_failures += 1
-                    bar.update(1)
-                else:
-                    report.dropped_failures += 1
-                    writer.progress = current_progress()
-                bar.set_postfix(
-                    attempts=report.attempts,
-                    success=f"{report.success_rate:.0%}",
-                    refresh=False,
-                )
+                        report.dropped_failures += 1
+                        writer.progress = current_progress()
+                    bar.set_postfix(
+                        attempts=report.attempts,
+                        success=f"{report.success_rate:.0%}",
+                        refresh=False,
+                    )
             if report.saved < episodes and not stopper.stop and next_attempt >= max_attempts:
                 report.gave_up = True
             report.interrupted = stopper.stop

@@ -67,9 +67,11 @@ class Episode:
 class EpisodeRecorder:
     """Samples a running environment into an ``Episode`` (see the module docstring).
 
-    ``env``: a WireCraft environment (wrapped or not); ``fps``: a divisor of 60."""
+    ``env``: a WireCraft environment (wrapped or not); ``fps``: a divisor of 60; ``renderer``:
+    a ``FastRenderer`` of the environment's model and image size to draw with (shared by the
+    recorders of one vector env; its owner closes it), else the recorder makes its own."""
 
-    def __init__(self, env, fps: int = 30, *, source: str = "scripted"):
+    def __init__(self, env, fps: int = 30, *, source: str = "scripted", renderer=None):
         from wirecraft.envs.env import CONTROL_HZ
 
         self.env = getattr(env, "unwrapped", env)
@@ -80,7 +82,8 @@ class EpisodeRecorder:
         self.steps_per_frame = CONTROL_HZ // fps
         self.source = source
         self.flag_names = schema.success_flags(self.env.task.name)
-        self._renderer = None
+        self._renderer = renderer
+        self._owns_renderer = renderer is None
         self.render_seconds = 0.0  # wall time spent rendering
         self.render_cpu_seconds = 0.0  # CPU time of this process (Mesa's threads included)
         self.clear(schema.NO_SEED)
@@ -150,9 +153,9 @@ class EpisodeRecorder:
         )
 
     def close(self) -> None:
-        if self._renderer is not None:
+        if self._renderer is not None and self._owns_renderer:
             self._renderer.close()
-            self._renderer = None
+        self._renderer = None
 
     def clear(self, seed: int = schema.NO_SEED) -> None:
         """Forget the frames recorded so far (``finish`` then gives an empty episode)."""
