@@ -14,7 +14,7 @@ BROWSER_PACKAGES := chromium
 # A virtual display and key sender for the teleoperation window test (tests/test_teleop.py).
 WINDOW_PACKAGES := xvfb xdotool x11-apps
 
-.PHONY: demo test bench lint venv install sysdeps browser window clean
+.PHONY: demo test bench lint venv install gpu sysdeps browser window clean
 
 $(PY):
 	@if [ -z "$(PYTHON)" ]; then \
@@ -37,6 +37,15 @@ $(STAMP): pyproject.toml plugins/lerobot_env_wirecraft/pyproject.toml | $(PY)
 	@touch $@
 
 install: $(STAMP)
+
+# The GPU backend (MuJoCo Warp, ~390 MB), on request: the demo does not need it; the tests run
+# its parity checks on Warp's CPU device.
+GPU_STAMP := $(VENV)/.installed-gpu
+$(GPU_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install -q -e '.[gpu]'
+	@touch $@
+
+gpu: $(GPU_STAMP)
 
 # Off-screen rendering on the CPU needs Mesa's EGL. Installed with apt-get when missing (CI runs
 # as root); otherwise the missing packages are named.
@@ -76,7 +85,7 @@ window:
 demo: install sysdeps
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(VENV)/bin/wirecraft demo --out out/demo
 
-test: install sysdeps browser window
+test: install gpu sysdeps browser window
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -n 2 -q
 
 bench: install

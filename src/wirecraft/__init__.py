@@ -78,9 +78,8 @@ def make(task: str, **kwargs) -> gym.Env:
     return gym.make(task_id, **kwargs)
 
 
-BACKENDS = ("cpu",)
-
-
+# cpu: MuJoCo's batch engine on C threads; warp: MuJoCo Warp (GPU, or its CPU device).
+BACKENDS = ("cpu", "warp")
 ARRAY_TYPES = ("numpy", "torch")
 
 
@@ -96,21 +95,28 @@ def make_vec(
     """``num_envs`` environments of ``task`` whose physics steps on ``threads`` C threads
     (0: all CPUs) with MuJoCo's batch engine; a gymnasium VectorEnv (SAME_STEP autoreset).
 
+    ``backend="warp"``: the physics steps on MuJoCo Warp on ``device`` (a Warp device:
+    ``"cuda:0"``, or ``"cpu"`` for tests; default Warp's preferred one), the task's code on the
+    host (``wirecraft.envs.warp_batch``); ``warp_nconmax`` / ``warp_njmax`` size its contact
+    and constraint buffers per world.  Needs ``pip install wirecraft[gpu]``.
+
     ``arrays="torch"`` returns observations, rewards and flags as torch tensors (on ``device``,
     default the CPU, where they share memory with the numpy arrays) and accepts tensor
     actions; infos stay numpy.  Needs torch (``pip install wirecraft[rl]``)."""
     from wirecraft.envs.vector import WireCraftVectorEnv
 
     if backend not in BACKENDS:
-        raise ValueError(
-            f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)} "
-            "(the GPU backend, MuJoCo Warp, is not available yet)"
-        )
+        raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
     if arrays not in ARRAY_TYPES:
         raise ValueError(f"unknown arrays {arrays!r}; valid: {', '.join(ARRAY_TYPES)}")
-    if device is not None and arrays != "torch":
-        raise ValueError(f"make_vec: device={device!r} is for arrays='torch' only")
-    env = WireCraftVectorEnv(family_of(task), num_envs, threads=threads, **kwargs)
+    if device is not None and arrays != "torch" and backend != "warp":
+        raise ValueError(
+            f"make_vec: device={device!r} is for arrays='torch' or backend='warp' only"
+        )
+    warp = {"device": device} if backend == "warp" else {}
+    env = WireCraftVectorEnv(
+        family_of(task), num_envs, threads=threads, backend=backend, **warp, **kwargs
+    )
     if arrays == "torch":
         from wirecraft.envs.vector import TorchArrays
 

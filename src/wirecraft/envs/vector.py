@@ -38,7 +38,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv, VectorWrapper
 from gymnasium.vector.utils import batch_space, create_empty_array
 from mujoco.batch import Batch, SimulationError
 
-from wirecraft import validation
+from wirecraft import BACKENDS, validation
 from wirecraft.control import ControlState
 from wirecraft.envs.env import (
     STATE_SPEC,
@@ -80,6 +80,10 @@ class WireCraftVectorEnv(VectorEnv):
         *,
         threads: int = 0,
         sync_envs: bool = True,
+        backend: str = "cpu",
+        device: str | None = None,
+        warp_nconmax: int | None = None,
+        warp_njmax: int | None = None,
         **kwargs,
     ) -> None:
         validation.int_in_range("make_vec", "num_envs", num_envs, 1, MAX_NUM_ENVS)
@@ -99,10 +103,25 @@ class WireCraftVectorEnv(VectorEnv):
         self.model = first.model
         self.num_envs = num_envs
         self.threads = threads
-        # Persistent: each simulation keeps its MjData, so the forward pass that brings derived
-        # quantities up to date after a step runs on the batch's threads and get_data hands the
-        # whole result back (cheaper than mj_setState + mj_forward per environment in Python).
-        self.batch = Batch(self.model, num_envs, nthread=threads, persistent=True)
+        validation.one_of("make_vec", "backend", backend, BACKENDS)
+        warp_sizes = {"nconmax": warp_nconmax, "njmax": warp_njmax}
+        warp_sizes = {k: v for k, v in warp_sizes.items() if v is not None}
+        for name, value in warp_sizes.items():
+            validation.int_in_range("make_vec", f"warp_{name}", value, 1, 10**7)
+        if backend == "warp":
+            from wirecraft.envs.warp_batch import WarpBatch
+
+            self.batch = WarpBatch(self.model, num_envs, device, **warp_sizes)
+        else:
+            if device is not None or warp_sizes:
+                given = ["device"] * (device is not None) + [f"warp_{k}" for k in warp_sizes]
+                raise ValueError(f"make_vec: {', '.join(given)} is for backend='warp' only")
+            # Persistent: each simulation keeps its MjData, so the forward pass that brings
+            # derived quantities up to date after a step runs on the batch's threads and
+            # get_data hands the whole result back (cheaper than mj_setState + mj_forward per
+            # environment in Python).
+            self.batch = Batch(self.model, num_envs, nthread=threads, persistent=True)
+        self.backend = backend
         self._ctrl = self.batch.bind("ctrl")
         self.frame = Frame.of_batch(self.batch)  # the batched step's and the settle's view
         self.single_observation_space = first.observation_space

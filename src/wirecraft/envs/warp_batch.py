@@ -1,0 +1,241 @@
+"""The vector environment's physics on MuJoCo Warp (``make_vec(..., backend="warp")``).
+
+``WarpBatch`` offers the part of ``mujoco.batch.Batch``'s interface that
+``WireCraftVectorEnv`` uses (state rows, ``bind``, ``step``, ``forward``, ``get_data``), so
+the controller, the tasks, autoreset and divergence handling are the CPU backend's own code.
+The physics of all worlds steps on the Warp device; what crosses to the host is the minimal
+set the step needs: the state rows (``mjSTATE_INTEGRATION``: the controls go up, the new state
+comes back, so that divergence roll-backs and resets work on rows as on the CPU) and the
+derived fields the task and controller read (``Frame``'s), each call.  ``bytes_per_step``
+says how many.
+
+Warp is not bitwise deterministic and runs in float32 where MuJoCo's C code runs in float64:
+parity with the CPU backend is statistical (tests/test_warp_backend.py names the tolerances).
+``njmax`` / ``nconmax`` (constraint rows / contacts per world) are fixed at construction; an
+overflow raises ``WarpOverflow`` instead of dropping constraints silently.  (An ``njmax`` far
+below what a world needs crashed MuJoCo Warp 4.0.0's CPU device, a segmentation fault, before
+any flag could be read: leave the defaults' margin.)
+
+Models: MuJoCo Warp refuses ``mjDSBL_AUTORESET`` (it never resets a world itself, which is
+what the flag asks of MuJoCo's C code), so it is cleared on the device's copy; a flex with
+general attachments (the rod's clamped ends) needs the CG solver there.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from wirecraft.envs.env import STATE_SPEC
+
+# Where each component of an mjSTATE_INTEGRATION row lives in MjData (and in Warp's Data).
+STATE_FIELDS = (
+    (mujoco.mjtState.mjSTATE_TIME, "time"),
+    (mujoco.mjtState.mjSTATE_QPOS, "qpos"),
+    (mujoco.mjtState.mjSTATE_QVEL, "qvel"),
+    (mujoco.mjtState.mjSTATE_ACT, "act"),
+    (mujoco.mjtState.mjSTATE_HISTORY, "history"),
+    (mujoco.mjtState.mjSTATE_WARMSTART, "qacc_warmstart"),
+    (mujoco.mjtState.mjSTATE_CTRL, "ctrl"),
+    (mujoco.mjtState.mjSTATE_QFRC_APPLIED, "qfrc_applied"),
+    (mujoco.mjtState.mjSTATE_XFRC_APPLIED, "xfrc_applied"),
+    (mujoco.mjtState.mjSTATE_EQ_ACTIVE, "eq_active"),
+    (mujoco.mjtState.mjSTATE_MOCAP_POS, "mocap_pos"),
+    (mujoco.mjtState.mjSTATE_MOCAP_QUAT, "mocap_quat"),
+    (mujoco.mjtState.mjSTATE_USERDATA, "userdata"),
+    (mujoco.mjtState.mjSTATE_PLUGIN, "plugin_state"),
+    (mujoco.mjtState.mjSTATE_PLASTIC, "plastic"),
+)
+DEFAULT_NCONMAX = 256  # contacts per world
+DEFAULT_NJMAX = 1024  # constraint rows per world
+
+
+class WarpOverflow(RuntimeError):
+    """More contacts or constraint rows than ``nconmax`` / ``njmax`` in some world."""
+
+
+def warp_modules():
+    """(warp, mujoco_warp), or an error naming the extra that installs them."""
+    try:
+        import mujoco_warp
+        import warp
+    except ImportError as err:
+        raise RuntimeError(
+            f"backend='warp' needs MuJoCo Warp ({err}); install it with: pip install "
+            "'wirecraft[gpu]' (or make gpu)"
+        ) from None
+    warp.config.quiet = True
+    return warp, mujoco_warp
+
+
+class WarpBatch:
+    """``nsim`` worlds of ``model`` on the Warp ``device`` (see the module docstring)."""
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        nsim: int,
+        device: str | None = None,
+        nconmax: int = DEFAULT_NCONMAX,
+        njmax: int = DEFAULT_NJMAX,
+    ) -> None:
+        wp, mjw = warp_modules()
+        self._wp, self._mjw = wp, mjw
+        self.device = str(wp.get_device(device))
+        self.model, self.nsim = model, int(nsim)
+        self.nconmax, self.njmax = int(nconmax), int(njmax)
+        # Not forwarded: put_data sizes nothing after its contacts (all bodies at the origin
+        # would overlap); the first call uploads the real states.
+        template = mujoco.MjData(model)
+        self._template = template
+        flags = model.opt.disableflags
+        solver = model.opt.solver
+        model.opt.disableflags = flags & ~int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
+        try:
+            with wp.ScopedDevice(self.device):
+                try:
+                    self._wm = mjw.put_model(model)
+                except ValueError as err:
+                    if "requires solver='CG'" not in str(err):
+                        raise
+                    model.opt.solver = mujoco.mjtSolver.mjSOL_CG
+                    self._wm = mjw.put_model(model)
+                self._wd = mjw.put_data(
+                    model, template, nworld=self.nsim, nconmax=self.nconmax, njmax=self.njmax
+                )
+        finally:
+            model.opt.disableflags, model.opt.solver = flags, solver
+        # State rows and where each component sits in them.
+        self._components = []
+        offset = 0
+        for bit, name in STATE_FIELDS:
+            if not int(STATE_SPEC) & int(bit):
+                continue
+            size = mujoco.mj_stateSize(model, bit)
+            if size:
+                if getattr(self._wd, name, None) is None:
+                    raise NotImplementedError(
+                        f"backend='warp': MuJoCo Warp keeps no {name!r}, which this model's "
+                        "state holds"
+                    )
+                self._components.append((name, offset, size))
+            offset += size
+        self.state = np.empty((self.nsim, offset))
+        row = np.empty(offset)
+        mujoco.mj_getState(model, template, row, STATE_SPEC)
+        self.state[:] = row
+        self._outputs: dict[str, np.ndarray] = {}
+        self.bytes_up = self.state.nbytes
+        self.bytes_down = self.state.nbytes
+
+    # -- the Batch interface the vector environment uses ----------------------------------------
+    def bind(self, name: str) -> np.ndarray:
+        """A live (nsim, ...) array of ``name``: a view of the state rows for a state field,
+        else the host copy of a derived field, refreshed after every call."""
+        for field, offset, size in self._components:
+            if field == name:
+                view = self.state[:, offset : offset + size]
+                return view[:, 0] if name == "time" else view.reshape(self.nsim, *self._shape(name))
+        if name not in self._outputs:
+            shape = getattr(self._template, name).shape
+            out = np.zeros((self.nsim, *shape))
+            self._outputs[name] = out
+            self.bytes_down += out.nbytes
+            self._download_outputs([name])
+        return self._outputs[name]
+
+    def step(self, ids=None, nstep: int = 1, stage=None) -> None:
+        """``nstep`` steps of the worlds ``ids`` (default all), then the position stage at the
+        new state (``_positions``, whatever ``stage``).  The other worlds keep their state and
+        fields."""
+        keep = self._others(ids)
+        saved = (self.state[keep].copy(), {k: v[keep].copy() for k, v in self._outputs.items()})
+        self._upload()
+        with self._wp.ScopedDevice(self.device):
+            for _ in range(nstep):
+                self._mjw.step(self._wm, self._wd)
+            self._positions()
+        self._check_overflow()
+        self._download_state()
+        self._download_outputs(self._outputs)
+        if keep.size:
+            self.state[keep] = saved[0]
+            for name, values in saved[1].items():
+                self._outputs[name][keep] = values
+
+    def forward(self, ids=None, stage=None) -> None:
+        """The position-stage fields of the current states of the worlds ``ids`` (default
+        all)."""
+        keep = self._others(ids)
+        saved = {k: v[keep].copy() for k, v in self._outputs.items()}
+        self._upload()
+        with self._wp.ScopedDevice(self.device):
+            self._positions()
+        self._download_outputs(self._outputs)
+        for name, values in saved.items():
+            self._outputs[name][keep] = values
+
+    def get_data(self, sim: int, data: mujoco.MjData) -> None:
+        """World ``sim`` as an MjData: its state, and MuJoCo's own forward pass at it (what
+        experts and renderers read)."""
+        mujoco.mj_setState(self.model, data, self.state[sim], STATE_SPEC)
+        mujoco.mj_forward(self.model, data)
+
+    @property
+    def bytes_per_step(self) -> int:
+        """Bytes crossing between host and device in one step: state rows up, state rows and
+        the bound derived fields down."""
+        return self.bytes_up + self.bytes_down
+
+    # -- internals --------------------------------------------------------------------------
+    def _positions(self) -> None:
+        """Kinematics, contacts and position sensors (contact flags) at the current state:
+        what the controller and the task read.  Not the velocity stage: run between steps,
+        MuJoCo Warp 4.0.0's ``fwd_velocity`` (and ``forward``, which calls it) left the next
+        step finding no contacts, and the worlds went to NaN within a few steps."""
+        self._mjw.fwd_position(self._wm, self._wd)
+        self._mjw.sensor_pos(self._wm, self._wd)
+
+    def _others(self, ids) -> np.ndarray:
+        if ids is None or (isinstance(ids, slice) and ids == slice(None)):
+            return np.zeros(0, int)
+        chosen = np.zeros(self.nsim, bool)
+        chosen[np.asarray(ids, dtype=int)] = True
+        return np.flatnonzero(~chosen)
+
+    def _upload(self) -> None:
+        wp = self._wp
+        for name, offset, size in self._components:
+            target = getattr(self._wd, name)
+            values = self.state[:, offset : offset + size]
+            shape = (self.nsim,) if name == "time" else (self.nsim, *self._shape(name))
+            scalar = wp.dtype_to_numpy(getattr(target.dtype, "_wp_scalar_type_", target.dtype))
+            target.assign(values.reshape(shape).astype(scalar))
+
+    def _download_state(self) -> None:
+        for name, offset, size in self._components:
+            values = getattr(self._wd, name).numpy()
+            self.state[:, offset : offset + size] = values.reshape(self.nsim, size)
+
+    def _download_outputs(self, names) -> None:
+        for name in names:
+            out = self._outputs[name]
+            out[:] = getattr(self._wd, name).numpy().reshape(out.shape)
+
+    def _shape(self, name: str) -> tuple[int, ...]:
+        return getattr(self._template, name).shape
+
+    def _check_overflow(self) -> None:
+        """Raise where a world ran out of contact or constraint room (the solver's iteration
+        limit is not an overflow); Warp would otherwise drop them and print a warning."""
+        overflow = self._wd.overflow.numpy()
+        iterations = int(self._mjw.OverflowType.ITERATIONS)
+        worlds = np.flatnonzero(overflow & ~iterations)
+        if worlds.size:
+            kinds = self._mjw.OverflowType(int(np.bitwise_or.reduce(overflow[worlds])))
+            self._wd.overflow.zero_()
+            raise WarpOverflow(
+                f"MuJoCo Warp ran out of room in worlds {worlds.tolist()} ({kinds!r}) with "
+                f"nconmax={self.nconmax} contacts and njmax={self.njmax} constraint rows per "
+                "world; make the vector env with larger warp_nconmax / warp_njmax"
+            )

@@ -1,0 +1,122 @@
+"""The MuJoCo Warp backend on Warp's CPU device, against the CPU backend (MuJoCo's C code).
+
+Warp runs in float32 and is not bitwise deterministic, so parity is a tolerance: one control
+step from the same state, then a short episode through the vector environment.  The
+tolerances below are about 10x what was measured (docs/performance.md, "GPU backend").
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+import wirecraft
+from wirecraft.envs.env import STATE_SPEC, SUBSTEPS
+
+pytest.importorskip("mujoco_warp", reason="make test installs it (make gpu)")
+
+from wirecraft.envs.warp_batch import WarpBatch, WarpOverflow  # noqa: E402
+
+ONE_STEP_QPOS = 3e-5  # rad or m after one control step (measured 2.8e-6)
+ONE_STEP_FIELDS = 5e-5  # positions, rotations, Jacobian rows, sensors (measured <= 4.6e-6)
+# State observation and reward after reset (1 s of settling) and 10 random steps: measured
+# 6.7e-4 and 3.6e-3 (insertion), 2.6e-3 and 1.8e-4 (seating).
+EPISODE_OBS = {"insertion": 7e-3, "seating": 3e-2}
+EPISODE_REWARD = 0.05
+
+
+@pytest.fixture(scope="module")
+def settled_insertion():
+    """A settled insertion scene (articulated wire): model and its state row."""
+    env = wirecraft.make("insertion").unwrapped
+    env.reset(seed=4)
+    row = np.empty(mujoco.mj_stateSize(env.model, STATE_SPEC))
+    mujoco.mj_getState(env.model, env.data, row, STATE_SPEC)
+    return env.model, row
+
+
+def test_one_control_step_matches_mujocos_c_code(settled_insertion):
+    model, row = settled_insertion
+    warp = WarpBatch(model, 2, "cpu")
+    warp.state[:] = row
+    fields = {name: warp.bind(name) for name in ("xpos", "site_xmat", "cdof", "sensordata")}
+    warp.step(nstep=SUBSTEPS)
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, row, STATE_SPEC)
+    mujoco.mj_step(model, data, nstep=SUBSTEPS)
+    mujoco.mj_forward(model, data)  # the batch reports the new state's positions
+    for world in range(2):
+        qpos = warp.bind("qpos")[world]
+        np.testing.assert_allclose(qpos, data.qpos, atol=ONE_STEP_QPOS)
+        for name, values in fields.items():
+            expected = getattr(data, name)
+            np.testing.assert_allclose(
+                values[world].reshape(expected.shape), expected, atol=ONE_STEP_FIELDS, err_msg=name
+            )
+    # The same constraint rows as MuJoCo's C code (contacts, limits, equalities).
+    assert warp._wd.nefc.numpy().tolist() == [data.nefc, data.nefc]
+
+
+def test_a_world_stepped_alone_leaves_the_others_as_they_were(settled_insertion):
+    model, row = settled_insertion
+    warp = WarpBatch(model, 3, "cpu")
+    warp.state[:] = row
+    xpos = warp.bind("xpos")
+    warp.forward()
+    before_state, before_xpos = warp.state.copy(), xpos.copy()
+    warp.step([1], nstep=SUBSTEPS)
+    np.testing.assert_array_equal(warp.state[[0, 2]], before_state[[0, 2]])
+    np.testing.assert_array_equal(xpos[[0, 2]], before_xpos[[0, 2]])
+    assert not np.array_equal(warp.state[1], before_state[1])
+
+
+# The settled scene has 6 contacts and 31 constraint rows per world.  (njmax=20 crashed MuJoCo
+# Warp 4.0.0 on the CPU device with a segmentation fault instead of flagging it.)
+@pytest.mark.parametrize("room", [{"nconmax": 2}, {"njmax": 30}], ids=lambda r: str(r))
+def test_too_little_room_for_contacts_or_constraints_is_an_error_not_a_silent_drop(
+    settled_insertion, room
+):
+    model, row = settled_insertion
+    warp = WarpBatch(model, 2, "cpu", **room)
+    warp.state[:] = row
+    ((name, value),) = room.items()
+    with pytest.raises(WarpOverflow, match=f"{name}={value}"):
+        warp.step(nstep=SUBSTEPS)
+
+
+# Routing is not here: its scene went to NaN in MuJoCo Warp 4.0.0 within ~8 control steps of
+# the reset's settle, where MuJoCo's C code steps it (docs/performance.md, "GPU backend").
+@pytest.mark.parametrize("task", ["insertion", "seating"])
+def test_the_vector_env_on_warp_follows_the_cpu_backend(task):
+    """Articulated wire: reset (1 s of settling) and 10 random steps give the CPU backend's
+    observations and rewards within the tolerances; the step reports how many bytes cross
+    between host and device."""
+    cpu = wirecraft.make_vec(task, 2, threads=1, diagnostics=False)
+    warp = wirecraft.make_vec(task, 2, backend="warp", device="cpu", diagnostics=False)
+    obs_cpu, _ = cpu.reset(seed=3)
+    obs_warp, _ = warp.reset(seed=3)
+    np.testing.assert_allclose(obs_warp, obs_cpu, atol=EPISODE_OBS[task])
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        actions = rng.uniform(-0.5, 0.5, cpu.action_space.shape)
+        obs_cpu, reward_cpu, *_ = cpu.step(actions)
+        obs_warp, reward_warp, _, truncated, infos = warp.step(actions)
+        assert not infos["diverged"].any() and not truncated.any()
+    np.testing.assert_allclose(obs_warp, obs_cpu, atol=EPISODE_OBS[task])
+    np.testing.assert_allclose(reward_warp, reward_cpu, atol=EPISODE_REWARD)
+    assert warp.batch.bytes_per_step > warp.batch.state.nbytes
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"device": "cpu"}, "device"),
+        ({"warp_njmax": 64}, "warp_njmax"),
+        ({"backend": "warp", "device": "cpu", "warp_njmax": 0}, "warp_njmax"),
+        ({"backend": "tpu"}, "backend"),
+    ],
+)
+def test_bad_backend_arguments(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        wirecraft.make_vec("insertion", 2, threads=1, **kwargs)
