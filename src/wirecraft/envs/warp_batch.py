@@ -12,9 +12,9 @@ says how many.
 Warp is not bitwise deterministic and runs in float32 where MuJoCo's C code runs in float64:
 parity with the CPU backend is statistical (tests/test_warp_backend.py names the tolerances).
 ``njmax`` / ``nconmax`` (constraint rows / contacts per world) are fixed at construction; an
-overflow raises ``WarpOverflow`` instead of dropping constraints silently.  (An ``njmax`` far
-below what a world needs crashed MuJoCo Warp 4.0.0's CPU device, a segmentation fault, before
-any flag could be read: leave the defaults' margin.)
+overflow raises ``WarpOverflow`` instead of dropping constraints silently.  (An ``njmax``
+below what a world needs, 20 and once even 30 for 31 rows, crashed MuJoCo Warp 4.0.0's CPU
+device with a segmentation fault before any flag could be read: leave the defaults' margin.)
 
 Models: MuJoCo Warp refuses ``mjDSBL_AUTORESET`` (it never resets a world itself, which is
 what the flag asks of MuJoCo's C code), so it is cleared on the device's copy; a flex with

@@ -337,28 +337,31 @@ def run(args, task_kwargs, write_json) -> int:
     policy_kwargs = {"device": device} if device != "cpu" else {}
     if args.fps is not None:
         policy_kwargs["fps"] = args.fps
+
+    def evaluation_of(policy, seed=args.seed, label=None):
+        return run_evaluation(
+            family,
+            str(policy),
+            seeds=args.seeds,
+            episodes=args.episodes,
+            workers=args.workers,
+            seed=seed,
+            episode_seconds=episode_seconds,
+            retain_force=retain_force,
+            batch=args.batch,
+            ray_address=args.ray,
+            progress=not args.quiet,
+            policy_kwargs=policy_kwargs or None,
+            torch_threads=args.torch_threads,
+            label=label,
+            **env_kwargs,
+        )
+
     if len(policies) > 1:
         args.policy = policies
-
-        def evaluate_one(policy):
-            return run_evaluation(
-                family,
-                policy,
-                seeds=args.seeds,
-                episodes=args.episodes,
-                workers=args.workers,
-                seed=args.seed,
-                episode_seconds=episode_seconds,
-                retain_force=retain_force,
-                batch=args.batch,
-                ray_address=args.ray,
-                progress=not args.quiet,
-                policy_kwargs=policy_kwargs or None,
-                torch_threads=args.torch_threads,
-                **env_kwargs,
-            ).payload
-
-        return run_across(args, family, env_kwargs, evaluate_one, write_json)
+        return run_across(
+            args, family, env_kwargs, lambda policy: evaluation_of(policy).payload, write_json
+        )
     start = time.time()
     if run_dir:
         checkpoints = sweep_mod.choose(
@@ -366,22 +369,7 @@ def run(args, task_kwargs, write_json) -> int:
         )
 
         def evaluate(path, held_out):
-            return run_evaluation(
-                family,
-                str(path),
-                seeds=args.seeds,
-                episodes=args.episodes,
-                workers=args.workers,
-                seed=held_out,
-                episode_seconds=episode_seconds,
-                retain_force=retain_force,
-                batch=args.batch,
-                ray_address=args.ray,
-                progress=not args.quiet,
-                policy_kwargs=policy_kwargs or None,
-                torch_threads=args.torch_threads,
-                **env_kwargs,
-            ).payload
+            return evaluation_of(path, held_out).payload
 
         result = sweep_mod.sweep(evaluate, checkpoints, args.select, args.seed)
         result.update(
@@ -397,23 +385,7 @@ def run(args, task_kwargs, write_json) -> int:
         print(f"  ({time.time() - start:.0f} s)")
         write_json(args.json, result)
         return 0
-    evaluation = run_evaluation(
-        family,
-        args.policy,
-        seeds=args.seeds,
-        episodes=args.episodes,
-        workers=args.workers,
-        seed=args.seed,
-        episode_seconds=episode_seconds,
-        retain_force=retain_force,
-        batch=args.batch,
-        ray_address=args.ray,
-        progress=not args.quiet,
-        policy_kwargs=policy_kwargs or None,
-        torch_threads=args.torch_threads,
-        label=args.label,
-        **env_kwargs,
-    )
+    evaluation = evaluation_of(args.policy, label=args.label)
     payload = evaluation.payload
     print_summary(payload, time.time() - start)
     write_json(args.json, payload)
