@@ -113,6 +113,7 @@ class WireAssembly:
         self.grasp_site = model.site("plug_grasp").id
         self.plug_contacts = body_geom_ids(model, [self.plug])
         self.wire_contacts = self._wire_contacts(model)
+        self.wire.resolve(model)
         self.end_equalities = np.array(
             [e for e in range(model.neq) if model.equality(e).name.startswith("wire_end")],
             dtype=int,

@@ -120,7 +120,7 @@ def run(
     options: dict[str, dict] | None = None,
 ):
     """Rows of ``measure`` for every (task, wire, num_envs, threads); ``options``: task ->
-    its task options (e.g. ``{"routing": {"num_clips": 3}}``)."""
+    the task options to build its environments with (``{family: {option: value}}``)."""
     from tqdm import tqdm
 
     options = options or {}

@@ -274,18 +274,6 @@ def _batch_tools(settings: CollectSettings, slots: int):
     return _BATCH_CACHE[key]
 
 
-def _row(infos: dict, i: int) -> dict:
-    """Environment ``i``'s info of a vector step or reset (the final step's for an
-    environment that ended, without its reset's keys)."""
-    return {
-        key: value[i]
-        for key, value in infos.items()
-        if not key.startswith(("_", "reset/"))
-        and key not in ("final_obs", "final_info")
-        and (f"_{key}" not in infos or infos[f"_{key}"][i])
-    }
-
-
 def run_episodes(settings: CollectSettings | dict, attempts: list[int], slots: int) -> list:
     """Episode attempts ``attempts`` (in this order), up to ``slots`` at a time in one vector
     environment: each attempt takes a free slot (its reset seed, its own expert and recorder),
@@ -293,6 +281,7 @@ def run_episodes(settings: CollectSettings | dict, attempts: list[int], slots: i
     environment's row is a single environment, so each episode is the one ``run_episode``
     gives for its attempt; physics + expert time is shared out among the running slots."""
     from wirecraft.envs.env import CONTROL_HZ
+    from wirecraft.envs.vector import info_row
     from wirecraft.experts import expert_class
 
     if isinstance(settings, dict):
@@ -343,7 +332,7 @@ def run_episodes(settings: CollectSettings | dict, attempts: list[int], slots: i
                     venv.set_states([i], [snapshot])
                 continue
             ready[i] = True
-            begin(i, attempt, seed, _row(infos, i))
+            begin(i, attempt, seed, info_row(infos, i))
             return
         if not ready[i] and ready.any():  # never started: idle in another slot's state
             state = venv.envs[int(np.flatnonzero(ready)[0])].get_state()
@@ -362,7 +351,7 @@ def run_episodes(settings: CollectSettings | dict, attempts: list[int], slots: i
     else:
         ready[:] = True
         for i, (attempt, seed) in enumerate(zip(first, seeds, strict=True)):
-            begin(i, attempt, seed, _row(infos, i))
+            begin(i, attempt, seed, info_row(infos, i))
     idle = venv.envs[0].settle_action
     while any(r is not None for r in running):
         active = [i for i, r in enumerate(running) if r is not None]
@@ -375,7 +364,7 @@ def run_episodes(settings: CollectSettings | dict, attempts: list[int], slots: i
         obs, _, terminated, truncated, infos = venv.step(actions)
         ended = []
         for i in active:
-            info = _row(infos, i)
+            info = info_row(infos, i)
             recorder, slot = recorders[i], running[i]
             recorder.record(actions[i], info)
             slot["held"] = slot["held"] + 1 if info["success"] else 0

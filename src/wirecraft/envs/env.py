@@ -436,15 +436,6 @@ class WireCraftEnv(gym.Env):
         return obs, info
 
     def step(self, action):
-        before = self.begin_step(action)
-        mujoco.mj_step(self.model, self.data, nstep=SUBSTEPS)
-        return self.finish_step(action, before)
-
-    # The two halves of a step around the physics, so that a vector environment can step the
-    # physics of many environments at once (envs/vector.py).
-    def begin_step(self, action) -> dict:
-        """Validate ``action``, snapshot the state, write the servo targets; returns the
-        snapshot (for a roll-back if the physics diverges)."""
         self.check_open("step")
         if self._needs_reset:
             raise gym.error.ResetNeeded(
@@ -454,27 +445,21 @@ class WireCraftEnv(gym.Env):
         action = as_actions("action", action, self.action_space.shape)
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action contains NaN or inf: {action.tolist()}")
-        before = self.get_state()
+        before = self.get_state()  # for a roll-back if the physics diverges
         self.controller.apply(self.data, action)
-        return before
-
-    def finish_step(self, action, before: dict, *, failed: bool = False, forwarded: bool = False):
-        """After the physics ran: the step's observation, reward, flags and info.  ``failed``:
-        the physics engine itself reported an error for this environment; ``forwarded``: the
-        caller already ran the forward pass at the new state (the vector env's batch does)."""
         model, data = self.model, self.data
+        mujoco.mj_step(model, data, nstep=SUBSTEPS)
         # mj_step leaves positions and contacts one substep behind qpos: bring them up to date,
         # so observations, rewards and success all describe the same instant.
-        if not forwarded:
-            mujoco.mj_forward(model, data)
+        mujoco.mj_forward(model, data)
         self.elapsed_steps += 1
-        if failed or not self._healthy():
+        if not self._healthy():
             self.set_state(before)
             self._needs_reset = True
             info = {**self.info_without_reward(), "diverged": True}
             return self.observe(), 0.0, False, True, info
         self.task.after_step(model, data)
-        clipped = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+        clipped = np.clip(action, -1.0, 1.0)
         terms = self.task.reward_terms(model, data, clipped)
         weighted, total = weighted_reward(terms, self.task.weights)
         reward = float(total)

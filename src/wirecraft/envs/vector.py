@@ -506,6 +506,19 @@ class WireCraftVectorEnv(VectorEnv):
         return self._obs.copy()
 
 
+def info_row(infos: dict, i: int) -> dict:
+    """Environment ``i``'s info from a vector step's or reset's batched ``infos`` (for an
+    environment whose episode ended in that step, its final step's, without the keys of the
+    reset that followed)."""
+    return {
+        key: value[i]
+        for key, value in infos.items()
+        if not key.startswith(("_", "reset/"))
+        and key not in ("final_obs", "final_info")
+        and (f"_{key}" not in infos or infos[f"_{key}"][i])
+    }
+
+
 def _item(value):
     """A plain Python value of one environment's entry of a batched info array."""
     return value.item() if isinstance(value, np.generic) else value
@@ -563,4 +576,4 @@ class TorchArrays(VectorWrapper):
         )
 
 
-__all__ = ["TorchArrays", "WireCraftVectorEnv", "env_seed"]
+__all__ = ["TorchArrays", "WireCraftVectorEnv", "env_seed", "info_row"]

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from wirecraft.envs.env import CONTROL_HZ, default_episode_seconds
+from wirecraft.envs.vector import info_row
 from wirecraft.evaluation import diagnostics, retention
 from wirecraft.evaluation.policies import (
     load_policy,
@@ -141,16 +142,6 @@ def environment_and_policy(config: EvalConfig):
     return _CACHE[key]
 
 
-def _info_at(infos: dict, i: int) -> dict:
-    return {
-        k: v[i]
-        for k, v in infos.items()
-        if not k.startswith("_")
-        and k not in ("final_obs", "final_info")
-        and (f"_{k}" not in infos or infos[f"_{k}"][i])
-    }
-
-
 def run_chunk(config: EvalConfig, specs: list[EpisodeSpec], progress=None) -> list[EpisodeResult]:
     """Run up to ``config.batch`` episodes side by side (padding a short chunk with repeats
     of its first episode, whose results are dropped)."""
@@ -176,7 +167,7 @@ def _run_chunk(config, specs, venv, policy, progress) -> list[EpisodeResult]:
         phases = policy_phase_names(policy)
         obs, _, _, _, infos = venv.step(actions)
         for i in np.flatnonzero(active):
-            info = _info_at(infos, i)
+            info = info_row(infos, i)
             phase = phases[i] if phases else None
             if info["diverged"]:
                 recorders[i].add(diagnostics.info_only(config.task, info), phase)
@@ -218,7 +209,7 @@ def _run_retention(config, venv, check, recorders) -> list[str | None]:
                 retention.clear_pull(envs[i])
         _, _, _, _, infos = venv.step(actions)
         for i in np.flatnonzero(live):
-            info = _info_at(infos, i)
+            info = info_row(infos, i)
             if info["diverged"]:
                 recorders[i].add(diagnostics.info_only(config.task, info), retention.stage(k))
                 failure[i], live[i] = "diverged", False

@@ -57,7 +57,7 @@ def record_episode(config, spec, summary: dict, path: str | Path) -> dict:
 
 
 def _record(config, spec, summary: dict, path, venv, policy) -> dict:
-    from wirecraft.evaluation.protocol import _info_at
+    from wirecraft.envs.vector import info_row
     from wirecraft.render import FastRenderer
 
     env = venv.envs[0]
@@ -91,7 +91,7 @@ def _record(config, spec, summary: dict, path, venv, policy) -> dict:
             actions = np.asarray(policy.act(obs), dtype=float)
             phases = policy_phase_names(policy)
             obs, _, _, _, infos = venv.step(actions)
-            info = _info_at(infos, 0)
+            info = info_row(infos, 0)
             success |= bool(info["success"])
             if info["diverged"]:
                 diverged = True
@@ -111,7 +111,7 @@ def _record(config, spec, summary: dict, path, venv, policy) -> dict:
                 else:
                     retention.clear_pull(env)
                 _, _, _, _, infos = venv.step(retention.retention_action(env, k)[None])
-                failure = failure or retention.failure_at(k, bool(_info_at(infos, 0)["success"]))
+                failure = failure or retention.failure_at(k, bool(info_row(infos, 0)["success"]))
                 if k % FRAME_EVERY == 0:
                     stage = retention.stage(k)
                     if stage.endswith("pull") and env.task.metrics.pulls:

@@ -167,9 +167,9 @@ class Task(ABC):
     def build_scene(self, spec: mujoco.MjSpec, wire_config: WireConfig) -> None: ...
 
     def add_contact_sensors(self, spec: mujoco.MjSpec, robot: RobotHandle) -> None:
-        """Contact sensors (``found``: the number of contacts) for the flags tasks
-        read: each pad against ``held_body``, and each top moving part of the robot (its
-        subtree) against the table and against ``fixture_body``'s subtree."""
+        """Contact sensors (``found``: the number of contacts) for the flags tasks read: each
+        pad against the held part (``held_criteria``), and each top moving part of the robot
+        (its subtree) against the table and against ``fixture_body``'s subtree."""
         obj = mujoco.mjtObj
         self.pad_criteria = [self.held_criteria(spec, pad) for pad in robot.pad_geom_names]
         for k, pad in enumerate(robot.pad_geom_names):
@@ -204,7 +204,6 @@ class Task(ABC):
     def bind(self, model: mujoco.MjModel, robot: RobotHandle) -> None:
         """Look up, once, what every task reads: the robot's base, TCP and pads, the cable."""
         self.robot = robot
-        self.model = model  # what the wire's batched centre line looks its ids up in
         index = self.robot_index = robot.index(model)
         self.base_site = index.base_site
         self.tcp_site = index.tcp_site
@@ -406,9 +405,7 @@ class Task(ABC):
         """(N, points, 3) the wire's centre line in world coordinates (once per state)."""
         return frame.cached(
             "wire_points",
-            lambda: self.assembly.wire.points_batch(
-                self.model, frame.xpos, frame.xmat, frame.flexvert_xpos
-            ),
+            lambda: self.assembly.wire.points_batch(frame.xpos, frame.xmat, frame.flexvert_xpos),
         )
 
     def wire_points(self, model, data) -> np.ndarray:

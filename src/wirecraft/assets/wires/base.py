@@ -254,19 +254,24 @@ class WireHandle(ABC):
         self._attach(spec, end, body_name)
         self.attached[end] = body_name
 
+    def resolve(self, model: mujoco.MjModel) -> None:
+        """Look the wire's ids up in ``model`` (once; ``points_batch`` needs them)."""
+        if self._ids is None:
+            self._ids = self._resolve(model)
+
     def points(self, model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
         """World centre-line points, (num_points, 3), from the start end to the other end."""
-        fields = (data.xpos[None], data.xmat[None], data.flexvert_xpos[None])
-        return self.points_batch(model, *fields)[0]
+        self.resolve(model)
+        return self.points_batch(data.xpos[None], data.xmat[None], data.flexvert_xpos[None])[0]
 
     def points_batch(
-        self, model: mujoco.MjModel, xpos: np.ndarray, xmat: np.ndarray, flexvert_xpos: np.ndarray
+        self, xpos: np.ndarray, xmat: np.ndarray, flexvert_xpos: np.ndarray
     ) -> np.ndarray:
         """``points`` of N simulations, (N, num_points, 3), from their (N, ...) ``xpos``,
         ``xmat`` and ``flexvert_xpos`` (one code for one simulation and for a batch, so both
-        give the same bits)."""
+        give the same bits); after ``resolve``."""
         if self._ids is None:
-            self._ids = self._resolve(model)
+            raise RuntimeError(f"wire {self.name!r}: call resolve(model) before points_batch")
         return self._points(xpos, xmat, flexvert_xpos, self._ids)
 
     def touch_criteria(

@@ -245,7 +245,7 @@ class RoutingTask(Task):
         return np.any(segments_meet_box(local[..., :-1, :], local[..., 1:, :], low, high), axis=-1)
 
     def _target_batch(self, frame: Frame):
-        """Per simulation: the first clip not yet routed (the last when all are), its slot
+        """Per simulation, for the first clip not yet routed (the last when all are): its slot
         centre (N, 3) and the wire point nearest to it (N, 3)."""
         routed = self.routed_batch(frame)
         pending = ~routed
@@ -256,17 +256,16 @@ class RoutingTask(Task):
         points = self.wire_points_batch(frame)
         gaps = points - slot[:, None]
         nearest = points[rows, np.argmin(np.sum(gaps * gaps, axis=2), axis=1)]
-        return index, slot, nearest
+        return slot, nearest
 
     # -- observation ------------------------------------------------------------------------
     def observe_batch(self, frame: Frame) -> np.ndarray:
         n = frame.size
         base_rot = frame.rot("site_xmat", self.base_site)
-        base_cos, base_sin = base_rot[:, 0, 0], base_rot[:, 1, 0]
+        base_cos, base_sin = base_rot[:, 0, 0, None], base_rot[:, 1, 0, None]
         count = len(self.clip_bodies)
         slots = frame.xpos[:, self.clip_bodies] + [0.0, 0.0, self.clip_config.base_height]
         cos, sin = frame.xmat[:, self.clip_bodies, 0], frame.xmat[:, self.clip_bodies, 3]
-        base_cos, base_sin = base_cos[:, None], base_sin[:, None]
         clips = np.zeros((n, MAX_CLIPS, 7))
         clips[:, :count, 0] = 1.0
         clips[:, :count, 1:4] = self.to_base_batch(frame, slots)
@@ -289,7 +288,7 @@ class RoutingTask(Task):
     # -- reward -----------------------------------------------------------------------------
     def reward_batch(self, frame, trackers, actions) -> dict[str, np.ndarray]:
         routed = self.routed_batch(frame)
-        index, slot, nearest = self._target_batch(frame)
+        slot, nearest = self._target_batch(frame)
         held = self.pads_touching(frame).all(axis=1).astype(float)
         tcp = frame.site_xpos[:, self.tcp_site]
         cfg = self.clip_config
