@@ -98,7 +98,9 @@ def make_vec(
     ``backend="warp"``: the physics steps on MuJoCo Warp on ``device`` (a Warp device:
     ``"cuda:0"``, or ``"cpu"`` for tests; default Warp's preferred one), the task's code on the
     host (``wirecraft.envs.warp_batch``); ``warp_nconmax`` / ``warp_njmax`` size its contact
-    and constraint buffers per world.  Needs ``pip install wirecraft[gpu]``.
+    and constraint buffers per world;
+    ``warp_solver="cg"`` replaces Newton (whose float32 steps are retried with CG where they
+    go non-finite) by CG throughout.  Needs ``pip install wirecraft[gpu]``.
 
     ``arrays="torch"`` returns observations, rewards and flags as torch tensors (on ``device``,
     default the CPU, where they share memory with the numpy arrays) and accepts tensor

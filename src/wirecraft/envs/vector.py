@@ -84,6 +84,7 @@ class WireCraftVectorEnv(VectorEnv):
         device: str | None = None,
         warp_nconmax: int | None = None,
         warp_njmax: int | None = None,
+        warp_solver: str | None = None,
         **kwargs,
     ) -> None:
         validation.int_in_range("make_vec", "num_envs", num_envs, 1, MAX_NUM_ENVS)
@@ -111,8 +112,12 @@ class WireCraftVectorEnv(VectorEnv):
         if backend == "warp":
             from wirecraft.envs.warp_batch import WarpBatch
 
+            if warp_solver is not None:
+                warp_sizes["solver"] = warp_solver
             self.batch = WarpBatch(self.model, num_envs, device, **warp_sizes)
         else:
+            if warp_solver is not None:
+                warp_sizes["solver"] = warp_solver
             if device is not None or warp_sizes:
                 given = ["device"] * (device is not None) + [f"warp_{k}" for k in warp_sizes]
                 raise ValueError(f"make_vec: {', '.join(given)} is for backend='warp' only")

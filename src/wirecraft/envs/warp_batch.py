@@ -17,8 +17,19 @@ below what a world needs, 20 and once even 30 for 31 rows, crashed MuJoCo Warp 4
 device with a segmentation fault before any flag could be read: leave the defaults' margin.)
 
 Models: MuJoCo Warp refuses ``mjDSBL_AUTORESET`` (it never resets a world itself, which is
-what the flag asks of MuJoCo's C code), so it is cleared on the device's copy; a flex with
-general attachments (the rod's clamped ends) needs the CG solver there.
+what the flag asks of MuJoCo's C code), so it is cleared on the device's copy.
+
+Solver: Newton, as on the CPU, with a fallback.  Newton factorizes ``M + J' D J`` by Cholesky,
+and on our scenes that matrix can be too ill-conditioned for float32: a light plug (smallest
+inertia eigenvalue 1.6e-7) striking the table with stiff contacts gave a condition number of
+2e9, the float32 Cholesky failed and the step returned NaN where MuJoCo's C code (float64)
+steps the same state.  A world whose state is not finite after a Newton step is stepped again
+from the same state with the conjugate-gradient solver, which needs no factorization
+(``FALLBACK_ITERATIONS``: at the model's 100 iterations CG stopped short of convergence and the
+episodes drifted from the CPU backend's); ``cg_fallbacks`` counts those world-steps.  A world
+that is still not finite is left so, for the vector environment's divergence handling.
+``solver="cg"`` runs CG throughout.  MuJoCo Warp refuses Newton with general flex attachments
+(the rod's clamped ends): that model runs CG.
 """
 
 from __future__ import annotations
@@ -48,6 +59,8 @@ STATE_FIELDS = (
 )
 DEFAULT_NCONMAX = 256  # contacts per world
 DEFAULT_NJMAX = 1024  # constraint rows per world
+FALLBACK_ITERATIONS = 1000  # CG iterations of a step retried after Newton's went non-finite
+SOLVERS = {"cg": mujoco.mjtSolver.mjSOL_CG, "newton": mujoco.mjtSolver.mjSOL_NEWTON}
 
 
 class WarpOverflow(RuntimeError):
@@ -78,7 +91,10 @@ class WarpBatch:
         device: str | None = None,
         nconmax: int = DEFAULT_NCONMAX,
         njmax: int = DEFAULT_NJMAX,
+        solver: str = "newton",
     ) -> None:
+        if solver not in SOLVERS:
+            raise ValueError(f"unknown Warp solver {solver!r}; valid: {', '.join(SOLVERS)}")
         wp, mjw = warp_modules()
         self._wp, self._mjw = wp, mjw
         self.device = str(wp.get_device(device))
@@ -88,9 +104,9 @@ class WarpBatch:
         # would overlap); the first call uploads the real states.
         template = mujoco.MjData(model)
         self._template = template
-        flags = model.opt.disableflags
-        solver = model.opt.solver
+        flags, model_solver = model.opt.disableflags, model.opt.solver
         model.opt.disableflags = flags & ~int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
+        model.opt.solver = SOLVERS[solver]
         try:
             with wp.ScopedDevice(self.device):
                 try:
@@ -103,8 +119,20 @@ class WarpBatch:
                 self._wd = mjw.put_data(
                     model, template, nworld=self.nsim, nconmax=self.nconmax, njmax=self.njmax
                 )
+                pristine = mjw.put_data(
+                    model, template, nworld=1, nconmax=self.nconmax, njmax=self.njmax
+                )
         finally:
-            model.opt.disableflags, model.opt.solver = flags, solver
+            model.opt.disableflags, model.opt.solver = flags, model_solver
+        self.solver = next(k for k, v in SOLVERS.items() if int(v) == int(self._wm.opt.solver))
+        self.cg_fallbacks = 0
+        self._per_world = [  # (device array, its one-world pristine copy), for _scrub
+            (array, getattr(group_of(pristine), name))
+            for group_of in (lambda data: data, lambda data: data.efc)
+            for name, array in vars(group_of(self._wd)).items()
+            if isinstance(array, wp.array) and array.ndim and array.shape[0] == self.nsim
+        ]
+        self._tainted = np.zeros(self.nsim, bool)
         # State rows and where each component sits in them.
         self._components = []
         offset = 0
@@ -146,21 +174,20 @@ class WarpBatch:
 
     def step(self, ids=None, nstep: int = 1, stage=None) -> None:
         """``nstep`` steps of the worlds ``ids`` (default all), then the position stage at the
-        new state (``_positions``, whatever ``stage``).  The other worlds keep their state and
+        new state (``_positions``, whatever ``stage``); a world that Newton left non-finite is
+        stepped again with CG (module docstring).  The other worlds keep their state and
         fields."""
         keep = self._others(ids)
-        saved = (self.state[keep].copy(), {k: v[keep].copy() for k, v in self._outputs.items()})
-        self._upload()
-        with self._wp.ScopedDevice(self.device):
-            for _ in range(nstep):
-                self._mjw.step(self._wm, self._wd)
-            self._positions()
-        self._check_overflow()
-        self._download_state()
-        self._download_outputs(self._outputs)
+        before = self.state.copy()
+        saved = {k: v[keep].copy() for k, v in self._outputs.items()}
+        self._run(nstep)
+        failed = np.flatnonzero(~np.isfinite(self.state).all(axis=1))
+        failed = np.setdiff1d(failed, keep)
+        if failed.size and self.solver == "newton":
+            self._retry_with_cg(failed, before, nstep)
         if keep.size:
-            self.state[keep] = saved[0]
-            for name, values in saved[1].items():
+            self.state[keep] = before[keep]
+            for name, values in saved.items():
                 self._outputs[name][keep] = values
 
     def forward(self, ids=None, stage=None) -> None:
@@ -188,6 +215,37 @@ class WarpBatch:
         return self.bytes_up + self.bytes_down
 
     # -- internals --------------------------------------------------------------------------
+    def _run(self, nstep: int) -> None:
+        """Upload the state rows, ``nstep`` steps and the position stage in every world,
+        download the state rows and the bound fields."""
+        self._upload()
+        with self._wp.ScopedDevice(self.device):
+            for _ in range(nstep):
+                self._mjw.step(self._wm, self._wd)
+            self._positions()
+        self._check_overflow()
+        self._download_state()
+        self._download_outputs(self._outputs)
+
+    def _retry_with_cg(self, worlds: np.ndarray, before: np.ndarray, nstep: int) -> None:
+        """Step ``worlds`` again from ``before`` with CG; the other worlds keep Newton's
+        result."""
+        newton_state = self.state.copy()
+        newton_outputs = {k: v.copy() for k, v in self._outputs.items()}
+        options = self._wm.opt
+        solver, iterations = options.solver, options.iterations
+        options.solver, options.iterations = self._mjw.SolverType.CG, FALLBACK_ITERATIONS
+        try:
+            self.state[:] = before
+            self._run(nstep)
+        finally:
+            options.solver, options.iterations = solver, iterations
+        others = np.setdiff1d(np.arange(self.nsim), worlds)
+        self.state[others] = newton_state[others]
+        for name, values in newton_outputs.items():
+            self._outputs[name][others] = values[others]
+        self.cg_fallbacks += worlds.size
+
     def _positions(self) -> None:
         """Kinematics, contacts and position sensors (contact flags) at the current state:
         what the controller and the task read.  Not the velocity stage: run between steps,
@@ -203,8 +261,22 @@ class WarpBatch:
         chosen[np.asarray(ids, dtype=int)] = True
         return np.flatnonzero(~chosen)
 
+    def _scrub(self, worlds: np.ndarray) -> None:
+        """Give ``worlds`` the derived fields of a fresh world.  A world that went non-finite
+        leaves NaN in fields the next step reads before writing (MuJoCo Warp 4.0.0 keeps the
+        world body's ``xpos``, ``cvel`` and ``cdof_dot`` from step to step), so a new state
+        alone would still step to NaN."""
+        for array, pristine in self._per_world:
+            size = pristine.size
+            for world in worlds:
+                self._wp.copy(array, pristine, dest_offset=int(world) * size, count=size)
+
     def _upload(self) -> None:
         wp = self._wp
+        finite = np.isfinite(self.state).all(axis=1)
+        if (self._tainted & finite).any():
+            self._scrub(np.flatnonzero(self._tainted & finite))
+            self._tainted &= ~finite
         for name, offset, size in self._components:
             target = getattr(self._wd, name)
             values = self.state[:, offset : offset + size]
@@ -216,6 +288,7 @@ class WarpBatch:
         for name, offset, size in self._components:
             values = getattr(self._wd, name).numpy()
             self.state[:, offset : offset + size] = values.reshape(self.nsim, size)
+        self._tainted |= ~np.isfinite(self.state).all(axis=1)
 
     def _download_outputs(self, names) -> None:
         for name in names:
