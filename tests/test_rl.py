@@ -71,6 +71,8 @@ def test_configs_carry_the_reference_defaults_and_reject_bad_values():
         VisionPPOConfig(token_dim=10, attention_heads=4)
     with pytest.raises(ValueError, match="unknown setting"):
         ppo.updated(no_such_field=1)
+    with pytest.raises(ValueError, match="backend must be 'cpu' or 'warp'"):
+        PPOConfig(backend="gpu")
 
 
 def test_bc_weight_follows_the_annealing_schedule():
@@ -623,6 +625,12 @@ def test_train_cli_rejects_an_existing_run_without_resume(tmp_path, capsys):
     assert code == 2 and "not an RL run directory" in capsys.readouterr().err
     code = main(["train", "ppo", "--out", str(tmp_path / "new"), "--steps", "1.5"])
     assert code == 2
+    # the physics backend: PPO's only, and a Warp device only with the Warp backend
+    code = main(["train", "sacfd", "--backend", "warp", "--out", str(tmp_path / "new")])
+    assert code == 2 and "--backend is for ppo and vision-ppo" in capsys.readouterr().err
+    code = main(["train", "ppo", "--warp-device", "cuda:0", "--out", str(tmp_path / "new")])
+    assert code == 2 and "warp_device is for backend='warp'" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
 
 
 @pytest.mark.slow

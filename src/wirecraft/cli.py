@@ -807,7 +807,15 @@ IL_FLAGS = (
     "--policy-arg",
     "--train-arg",
 )
-RL_FLAGS = ("--num-envs", "--threads", "--episode-seconds", "--set", "--task")  # + task flags
+RL_FLAGS = (
+    "--num-envs",
+    "--threads",
+    "--backend",
+    "--warp-device",
+    "--episode-seconds",
+    "--set",
+    "--task",
+)  # + task flags
 
 
 def torch_device(text: str) -> str:
@@ -848,6 +856,18 @@ def _train_args(p):
         type=number(0, 1024, integer=True),
         default=None,
         help="physics threads (0: all CPUs)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=("cpu", "warp"),
+        default=None,
+        help="RL: where the physics steps: cpu (default) or warp (MuJoCo Warp, make gpu)",
+    )
+    p.add_argument(
+        "--warp-device",
+        default=None,
+        metavar="DEV",
+        help="RL with --backend warp: the Warp device, e.g. cuda:0 (default: Warp's choice)",
     )
     p.add_argument(
         "--episode-seconds",

@@ -85,6 +85,11 @@ class PPOConfig:
     save_interval: int = 50  # iterations between checkpoints
     seed: int = 0
     threads: int = 0  # physics threads of the vector env (0: all CPUs)
+    # Where the physics steps: "cpu" (MuJoCo's batch engine on threads) or "warp" (MuJoCo Warp
+    # on warp_device, e.g. "cuda:0"; "" for Warp's preferred device).  The networks train on
+    # the CPU either way.
+    backend: str = "cpu"
+    warp_device: str = ""
     # Not in the reference: the fraction of training episodes that start part-way through a
     # successful scripted-expert episode (rl/expert_starts.py), from states recorded every
     # expert_start_stride control steps of expert_start_episodes episodes.  0: fresh resets only.
@@ -113,6 +118,10 @@ class PPOConfig:
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
+        if self.backend not in ("cpu", "warp"):
+            raise ValueError(f"{owner}: backend must be 'cpu' or 'warp', got {self.backend!r}")
+        if self.warp_device and self.backend != "warp":
+            raise ValueError(f"{owner}: warp_device is for backend='warp' only")
         if self.actor_inputs not in ("state", "relative"):
             raise ValueError(
                 f"{owner}: actor_inputs must be 'state' or 'relative', got {self.actor_inputs!r}"

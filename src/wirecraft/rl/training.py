@@ -9,6 +9,7 @@ length of training (``steps``) may change.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import datetime
 import io
 import os
@@ -146,6 +147,13 @@ def _check_expert_control(algorithm: str, task: str, env_kwargs: dict, cfg) -> N
             f"actor_inputs={cfg.actor_inputs!r} is computed from the state layout of a reactive "
             f"expert's task ({', '.join(REACTIVE_EXPERTS)}), not {task}"
         )
+
+
+def physics_backend(cfg) -> dict:
+    """make_vec's backend keywords of ``cfg`` (``backend``, ``warp_device``)."""
+    if cfg.backend == "cpu":
+        return {}
+    return {"backend": cfg.backend, "device": cfg.warp_device or None}
 
 
 def _new_run(algorithm: str, task: str, env_kwargs: dict, cfg, run_dir: Path) -> Run:
@@ -312,7 +320,12 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
             cfg, actor_groups=("features",), critic_groups=("state",), actor_normalization=False
         )
     venv = wirecraft.make_vec(
-        task, cfg.num_envs, threads=cfg.threads, **env_kwargs, **training_vec_options(env_kwargs)
+        task,
+        cfg.num_envs,
+        threads=cfg.threads,
+        **env_kwargs,
+        **training_vec_options(env_kwargs),
+        **physics_backend(cfg),
     )
     if cfg.expert_starts > 0:
         venv = _with_expert_starts(venv, cfg, run, iterations_done, progress)
@@ -526,10 +539,16 @@ def parse_cli_settings(args) -> tuple[int | None, dict]:
         steps = int(value)
     template = config_class(args.algorithm)()
     overrides = dict(parse_override(text, template) for text in args.set)
-    for flag, key in (("num_envs", "num_envs"), ("seed", "seed"), ("threads", "threads")):
+    flags = {"num_envs": "num_envs", "seed": "seed", "threads": "threads"}
+    flags.update(backend="backend", warp_device="warp_device")
+    for flag, key in flags.items():
         value = getattr(args, flag, None)
-        if value is not None:
-            overrides[key] = value
+        if value is None:
+            continue
+        if key not in {field.name for field in dataclasses.fields(template)}:
+            name = "--" + flag.replace("_", "-")
+            raise ValueError(f"{name} is for ppo and vision-ppo, not {args.algorithm}")
+        overrides[key] = value
     return steps, overrides
 
 
