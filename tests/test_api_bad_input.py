@@ -192,7 +192,7 @@ def test_make_vec_checks_memory_before_allocating(monkeypatch):
     from wirecraft.envs import vector
 
     monkeypatch.setattr(vector, "physical_memory", lambda: 2**30)
-    with pytest.raises(ValueError, match="num_envs=4096 needs about .* GiB"):
+    with pytest.raises(MemoryError, match="num_envs=4096 needs about .* GiB"):
         wirecraft.make_vec("insertion", 4096, threads=1)
 
 

@@ -176,7 +176,9 @@ def test_bench_envs_rows_csv_and_plot(tmp_path):
         assert key in row
     assert row["physics_steps_per_s"] == pytest.approx(8 * row["control_steps_per_s"], rel=1e-3)
     assert row["overhead_ratio"] > 1.0  # the environment does more than the raw physics
-    assert (tmp_path / "bench_envs.csv").read_text().startswith("task,options,info,wire,num_envs")
+    header = (tmp_path / "bench_envs.csv").read_text().splitlines()[0]
+    assert header.startswith("task,options,info,wire,backend,device,num_envs")
+    assert row["backend"] == "cpu" and row["bytes_per_step"] == 0
     assert np.asarray(Image.open(tmp_path / "bench_envs.png")).std() > 10
 
 
@@ -185,3 +187,8 @@ def test_bench_envs_bad_lists_are_clear_errors(capsys):
     assert "--num-envs" in capsys.readouterr().err
     assert main(["bench", "--suite", "envs", "--task", "knitting"]) == 2
     assert "unknown task 'knitting'" in capsys.readouterr().err
+    assert main(["bench", "--suite", "envs", "--backend", "warp", "--threads", "2"]) == 2
+    assert "--threads: applies only with --backend cpu" in capsys.readouterr().err
+    assert main(["bench", "--suite", "envs", "--device", "cuda:0"]) == 2
+    assert "--device: applies only with --backend warp" in capsys.readouterr().err
+    assert main(["bench", "--suite", "wires", "--backend", "warp"]) == 2

@@ -7,6 +7,8 @@ tolerances below are about 10x what was measured (docs/performance.md, "GPU back
 
 from __future__ import annotations
 
+import os
+
 import mujoco
 import numpy as np
 import pytest
@@ -19,6 +21,8 @@ pytest.importorskip("mujoco_warp", reason="make test installs it (make gpu)")
 from wirecraft.envs import warp_batch  # noqa: E402
 from wirecraft.envs.warp_batch import WarpBatch, WarpOverflow  # noqa: E402
 
+# Warp's CPU device in CI; benchmarks/gpu/checks.sh runs the same tests on a GPU.
+DEVICE = os.environ.get("WIRECRAFT_TEST_WARP_DEVICE", "cpu")
 ONE_STEP_QPOS = 3e-5  # rad or m after one control step (measured 2.8e-6)
 ONE_STEP_FIELDS = 5e-5  # positions, rotations, Jacobian rows, sensors (measured <= 4.6e-6)
 # State observation and reward after reset (1 s of settling) and 10 random steps: measured
@@ -39,7 +43,7 @@ def settled_insertion():
 
 def test_one_control_step_matches_mujocos_c_code(settled_insertion):
     model, row = settled_insertion
-    warp = WarpBatch(model, 2, "cpu")
+    warp = WarpBatch(model, 2, DEVICE)
     warp.state[:] = row
     fields = {name: warp.bind(name) for name in ("xpos", "site_xmat", "cdof", "sensordata")}
     warp.step(nstep=SUBSTEPS)
@@ -61,7 +65,7 @@ def test_one_control_step_matches_mujocos_c_code(settled_insertion):
 
 def test_a_world_stepped_alone_leaves_the_others_as_they_were(settled_insertion):
     model, row = settled_insertion
-    warp = WarpBatch(model, 3, "cpu")
+    warp = WarpBatch(model, 3, DEVICE)
     warp.state[:] = row
     xpos = warp.bind("xpos")
     warp.forward()
@@ -76,7 +80,7 @@ def test_a_world_that_went_non_finite_steps_like_a_fresh_one_from_a_new_state(se
     """Roll-backs and resets replace a diverged world's state rows; the fields MuJoCo Warp
     keeps on the device from that world's NaN step must not poison the next step."""
     model, row = settled_insertion
-    warp = WarpBatch(model, 2, "cpu")
+    warp = WarpBatch(model, 2, DEVICE)
     poisoned = np.tile(row, (2, 1))
     poisoned[1, 1:] = np.nan  # every component but the time
     warp.state[:] = poisoned
@@ -84,7 +88,7 @@ def test_a_world_that_went_non_finite_steps_like_a_fresh_one_from_a_new_state(se
     assert np.isfinite(warp.state[0]).all() and not np.isfinite(warp.state[1]).all()
     warp.state[:] = row
     warp.step(nstep=SUBSTEPS)
-    fresh = WarpBatch(model, 2, "cpu")
+    fresh = WarpBatch(model, 2, DEVICE)
     fresh.state[:] = row
     fresh.step(nstep=SUBSTEPS)
     # World 0 is left out: its step also reads what its previous step left on the device
@@ -96,14 +100,14 @@ def test_a_step_retried_with_cg_takes_cgs_result_for_those_worlds_only(settled_i
     """The fallback for worlds Newton left non-finite: those worlds get what a CG batch gives
     from the same state, the others keep Newton's result."""
     model, row = settled_insertion
-    newton = WarpBatch(model, 2, "cpu")
+    newton = WarpBatch(model, 2, DEVICE)
     newton.state[:] = row
     newton.step(nstep=SUBSTEPS)
-    cg = WarpBatch(model, 2, "cpu", solver="cg")
+    cg = WarpBatch(model, 2, DEVICE, solver="cg")
     cg._wm.opt.iterations = warp_batch.FALLBACK_ITERATIONS
     cg.state[:] = row
     cg.step(nstep=SUBSTEPS)
-    retried = WarpBatch(model, 2, "cpu")
+    retried = WarpBatch(model, 2, DEVICE)
     xpos = retried.bind("xpos")
     retried.state[:] = row
     before = retried.state.copy()
@@ -122,7 +126,7 @@ def test_a_step_retried_with_cg_takes_cgs_result_for_those_worlds_only(settled_i
 # CPU device with a segmentation fault before its overflow flag could be read.
 def test_too_little_room_for_contacts_is_an_error_not_a_silent_drop(settled_insertion):
     model, row = settled_insertion
-    warp = WarpBatch(model, 2, "cpu", nconmax=2)
+    warp = WarpBatch(model, 2, DEVICE, nconmax=2)
     warp.state[:] = row
     with pytest.raises(WarpOverflow, match="nconmax=2"):
         warp.step(nstep=SUBSTEPS)
@@ -134,7 +138,7 @@ def test_the_vector_env_on_warp_follows_the_cpu_backend(task):
     observations and rewards within the tolerances; the step reports how many bytes cross
     between host and device."""
     cpu = wirecraft.make_vec(task, 2, threads=1, diagnostics=False)
-    warp = wirecraft.make_vec(task, 2, backend="warp", device="cpu", diagnostics=False)
+    warp = wirecraft.make_vec(task, 2, backend="warp", device=DEVICE, diagnostics=False)
     obs_cpu, _ = cpu.reset(seed=3)
     obs_warp, _ = warp.reset(seed=3)
     np.testing.assert_allclose(obs_warp, obs_cpu, atol=EPISODE_OBS[task])
@@ -175,7 +179,7 @@ def test_ppo_trains_end_to_end_on_the_warp_backend(tmp_path):
 
     run = tmp_path / "run"
     argv = ["train", "ppo", "--task", "insertion", "--num-envs", "2", "--steps", "32"]
-    argv += ["--backend", "warp", "--warp-device", "cpu", "--set", "num_steps_per_env=16"]
+    argv += ["--backend", "warp", "--warp-device", DEVICE, "--set", "num_steps_per_env=16"]
     assert main([*argv, "--set", "num_mini_batches=2", "--out", str(run)]) == 0
     record = json.loads((run / "wirecraft_rl.json").read_text())
     assert record["config"]["backend"] == "warp" and record["env_steps"] == 32
@@ -183,3 +187,45 @@ def test_ppo_trains_end_to_end_on_the_warp_backend(tmp_path):
     obs, _ = venv.reset(seed=0)
     actions = load_policy(run, venv).act(obs)
     assert actions.shape == venv.action_space.shape and np.isfinite(actions).all()
+
+
+def test_bench_sweeps_warp_to_the_largest_count_that_fits(tmp_path, monkeypatch):
+    """``wirecraft bench --suite envs --backend warp``: rows name the backend and the device;
+    a count that does not fit ends the sweep and is listed, the larger ones are not tried."""
+    import json
+
+    from wirecraft.cli import main
+
+    tried = []
+    real_init = WarpBatch.__init__
+
+    def small_device(self, model, nsim, *args, **kwargs):
+        tried.append(nsim)
+        if nsim > 2:
+            raise MemoryError(f"{nsim} worlds do not fit on {DEVICE}: (test)")
+        real_init(self, model, nsim, *args, **kwargs)
+
+    monkeypatch.setattr(WarpBatch, "__init__", small_device)
+    path = tmp_path / "rows.json"
+    argv = ["bench", "--suite", "envs", "--backend", "warp", "--device", DEVICE]
+    argv += ["--num-envs", "2,4,8", "--seconds", "0.2", "--warmup", "0", "--out", str(tmp_path)]
+    assert main([*argv, "--json", str(path)]) == 0
+    document = json.loads(path.read_text())
+    (row,) = document["rows"]
+    assert (row["backend"], row["num_envs"], row["threads"]) == ("warp", 2, 0)
+    assert row["device"] and row["bytes_per_step"] > 0 and row["overhead_ratio"] > 0
+    assert [r["num_envs"] for r in document["did_not_fit"]] == [4] and tried == [2, 4]
+    assert document["provenance"]["packages"]["mujoco-warp"]
+
+
+def test_the_solver_stopping_at_its_iteration_limit_is_counted_not_printed(
+    settled_insertion, capfd
+):
+    model, row = settled_insertion
+    warp = WarpBatch(model, 2, DEVICE, solver="cg")
+    warp._wm.opt.iterations = 1  # no contact scene converges in one CG iteration
+    warp.state[:] = row
+    warp.step(nstep=SUBSTEPS)
+    warp.step(nstep=SUBSTEPS)
+    assert warp.solver_limit_hits == 4  # each world, each call
+    assert "iterations limit" not in capfd.readouterr().out

@@ -347,8 +347,8 @@ def _bench_args(p):
     p.add_argument(
         "--seconds",
         type=number(0, 600, low_open=True),
-        default=5.0,
-        help="simulated seconds timed per row, up to 600 (default: 5)",
+        default=None,
+        help="seconds timed per row, up to 600 (default: 5; 60 with --backend warp)",
     )
     p.add_argument(
         "--wire",
@@ -376,6 +376,19 @@ def _bench_args(p):
         type=number(0, 600),
         default=None,
         help="envs suite: warm-up seconds, up to 600 (default: 1)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=("cpu", "warp"),
+        default=None,
+        help="envs suite: cpu (MuJoCo's batch engine on threads, default) or warp (MuJoCo Warp; "
+        "defaults then: --num-envs 1024,4096,8192,16384,32768, --warmup 5, --seconds 60)",
+    )
+    p.add_argument(
+        "--device",
+        default=None,
+        metavar="DEV",
+        help="envs suite with --backend warp: the Warp device, e.g. cuda:0 (default: Warp's)",
     )
     p.add_argument(
         "--full-info",
@@ -416,7 +429,8 @@ def _bench_options(args, tasks) -> dict[str, dict]:
 @command("bench", "print throughput figures (physics steps/s, real-time factor)", _bench_args)
 def cmd_bench(args) -> int:
     if args.suite != "envs":
-        envs_flags = ("--task", "--num-envs", "--threads", "--warmup", "--full-info", "--out")
+        envs_flags = ("--task", "--num-envs", "--threads", "--warmup", "--backend", "--device")
+        envs_flags += ("--full-info", "--out")
         only_with(args, "--suite envs", *envs_flags)
         given = [
             flag
@@ -437,10 +451,10 @@ def cmd_bench(args) -> int:
             )
 
     if args.suite == "wires":
-        rows = wires.run(args.seconds, args.wire)
+        rows = wires.run(args.seconds or 5.0, args.wire)
         wires.print_table(rows)
     elif args.suite == "robots":
-        rows = robots.run(args.seconds)
+        rows = robots.run(args.seconds or 5.0)
         robots.print_table(rows)
     else:
         from wirecraft import register_gym_ids
@@ -453,12 +467,32 @@ def cmd_bench(args) -> int:
                 raise usage_error("--task", f"unknown task {task!r}; valid: {', '.join(ids)}")
         out = Path(args.out or check_path("--out", "out/bench", output_dir))
         wire_models = args.wire or ["articulated"]
-        counts = args.num_envs or [1, 4, 16, 64, 256]
+        backend = args.backend or "cpu"
+        if backend == "warp":
+            only_with(args, "--backend cpu", "--threads")
+        else:
+            only_with(args, "--backend warp", "--device")
+        warp = backend == "warp"
+        counts = args.num_envs or (
+            [1024, 4096, 8192, 16384, 32768] if warp else [1, 4, 16, 64, 256]
+        )
         threads = args.threads or [1, 2]
-        warmup = 1.0 if args.warmup is None else args.warmup
+        warmup = args.warmup if args.warmup is not None else 5.0 if warp else 1.0
+        seconds = args.seconds or (60.0 if warp else 5.0)
         info = "full" if args.full_info else "training"
         options = _bench_options(args, tasks)
-        rows = envs.run(tasks, wire_models, counts, threads, args.seconds, warmup, info, options)
+        rows, too_big = envs.run(
+            tasks,
+            wire_models,
+            counts,
+            threads,
+            seconds,
+            warmup,
+            info,
+            options,
+            backend,
+            args.device,
+        )
         envs.print_table(rows)
         with atomic_path(out / "bench_envs.csv") as tmp:
             envs.write_csv(rows, tmp)
@@ -467,7 +501,10 @@ def cmd_bench(args) -> int:
         print(f"wrote {out}/bench_envs.csv and {out}/bench_envs.png")
     from wirecraft.provenance import provenance
 
-    write_json(args.json, {"suite": args.suite, "rows": rows, "provenance": provenance()})
+    document = {"suite": args.suite, "rows": rows, "provenance": provenance()}
+    if args.suite == "envs":
+        document["did_not_fit"] = too_big
+    write_json(args.json, document)
     return 0
 
 
@@ -1070,7 +1107,7 @@ def main(argv: list[str] | None = None) -> int:
     args.argv = list(sys.argv[1:] if argv is None else argv)
     try:
         return COMMANDS[args.command][2](args)
-    except (ValueError, RuntimeError, OSError) as err:
+    except (ValueError, RuntimeError, OSError, MemoryError) as err:
         print(f"wirecraft {args.command}: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -15,7 +15,16 @@ import platform
 import subprocess
 from pathlib import Path
 
-PACKAGES = ("wirecraft", "mujoco", "numpy", "gymnasium", "torch", "lerobot")
+PACKAGES = (
+    "wirecraft",
+    "mujoco",
+    "mujoco-warp",
+    "warp-lang",
+    "numpy",
+    "gymnasium",
+    "torch",
+    "lerobot",
+)
 
 
 def _version(package: str) -> str | None:

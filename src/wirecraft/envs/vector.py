@@ -96,7 +96,7 @@ class WireCraftVectorEnv(VectorEnv):
         first = WireCraftEnv(task, **kwargs)
         needed = num_envs * (ENV_BYTES + ENV_BYTES_PER_DATA_BYTE * first.data.nbuffer)
         if needed > physical_memory():
-            raise ValueError(
+            raise MemoryError(
                 f"make_vec: num_envs={num_envs} needs about {needed / 2**30:.1f} GiB, more than "
                 f"this machine's {physical_memory() / 2**30:.1f} GiB of memory"
             )

@@ -116,9 +116,16 @@ class WarpBatch:
                         raise
                     model.opt.solver = mujoco.mjtSolver.mjSOL_CG
                     self._wm = mjw.put_model(model)
-                self._wd = mjw.put_data(
-                    model, template, nworld=self.nsim, nconmax=self.nconmax, njmax=self.njmax
-                )
+                try:
+                    self._wd = mjw.put_data(
+                        model, template, nworld=self.nsim, nconmax=self.nconmax, njmax=self.njmax
+                    )
+                except RuntimeError as err:
+                    if "Failed to allocate" not in str(err):
+                        raise
+                    raise MemoryError(
+                        f"{self.nsim} worlds do not fit on {self.device}: {err}"
+                    ) from None
                 pristine = mjw.put_data(
                     model, template, nworld=1, nconmax=self.nconmax, njmax=self.njmax
                 )
@@ -126,6 +133,10 @@ class WarpBatch:
             model.opt.disableflags, model.opt.solver = flags, model_solver
         self.solver = next(k for k, v in SOLVERS.items() if int(v) == int(self._wm.opt.solver))
         self.cg_fallbacks = 0
+        # The solver's iteration limit is counted (solver_limit_hits), not printed per step.
+        iterations = int(mjw.OverflowType.ITERATIONS)
+        self._wm.opt.warn_overflow = int(self._wm.opt.warn_overflow) & ~iterations
+        self.solver_limit_hits = 0
         self._per_world = [  # (device array, its one-world pristine copy), for _scrub
             (array, getattr(group_of(pristine), name))
             for group_of in (lambda data: data, lambda data: data.efc)
@@ -207,6 +218,20 @@ class WarpBatch:
         experts and renderers read)."""
         mujoco.mj_setState(self.model, data, self.state[sim], STATE_SPEC)
         mujoco.mj_forward(self.model, data)
+
+    def physics_only(self, nstep: int) -> None:
+        """``nstep`` steps of every world on the device from whatever it holds, nothing
+        crossing to the host, and wait for them: raw MuJoCo Warp physics, for benchmarks.
+        The host's state rows are left as they were (the next call uploads them)."""
+        with self._wp.ScopedDevice(self.device):
+            for _ in range(nstep):
+                self._mjw.step(self._wm, self._wd)
+            self._wp.synchronize_device(self.device)
+
+    @property
+    def device_name(self) -> str:
+        """The device's own name (the GPU's model, or "CPU")."""
+        return self._wp.get_device(self.device).name
 
     @property
     def bytes_per_step(self) -> int:
@@ -299,10 +324,15 @@ class WarpBatch:
         return getattr(self._template, name).shape
 
     def _check_overflow(self) -> None:
-        """Raise where a world ran out of contact or constraint room (the solver's iteration
-        limit is not an overflow); Warp would otherwise drop them and print a warning."""
+        """Raise where a world ran out of contact or constraint room; Warp would otherwise
+        drop them and print a warning.  Worlds whose solver stopped at its iteration limit
+        are counted in ``solver_limit_hits`` (one per world and call)."""
         overflow = self._wd.overflow.numpy()
         iterations = int(self._mjw.OverflowType.ITERATIONS)
+        limited = overflow & iterations != 0
+        if limited.any():
+            self.solver_limit_hits += int(limited.sum())
+            self._wd.overflow.assign(overflow & ~iterations)
         worlds = np.flatnonzero(overflow & ~iterations)
         if worlds.size:
             kinds = self._mjw.OverflowType(int(np.bitwise_or.reduce(overflow[worlds])))

@@ -87,6 +87,18 @@ def configure(p: argparse.ArgumentParser, add_task_args) -> None:
         help="environments stepped together",
     )
     p.add_argument(
+        "--backend",
+        choices=("cpu", "warp"),
+        default=None,
+        help="where the physics steps: cpu (default) or warp (MuJoCo Warp, make gpu)",
+    )
+    p.add_argument(
+        "--warp-device",
+        metavar="DEV",
+        default=None,
+        help="with --backend warp: the Warp device, e.g. cuda:0 (default: Warp's choice)",
+    )
+    p.add_argument(
         "--json", metavar="PATH", type=output_file, help="write the results (metrics, episodes)"
     )
     p.add_argument(
@@ -294,6 +306,10 @@ def run(args, task_kwargs, write_json) -> int:
     from wirecraft.tasks import TASKS
 
     family, env_kwargs = task_kwargs(args)
+    if args.backend == "warp":
+        env_kwargs.update(backend="warp", device=args.warp_device)
+    else:
+        only_with(args, "--backend warp", "--warp-device")
     policies = args.policy
     args.policy = policies[0]
     run_dir = args.policy not in BUILT_IN_POLICIES and sweep_mod.is_imitation_run(args.policy)
