@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Wheels for a GPU machine that reaches no package index (run here, where pip works):
-# the packages the GPU image lacks, for CPython 3.12 on x86-64 Linux, split into parts of at
-# most 60 MiB (a machine may receive 64 MiB per call), in $1 (default .gpu, which git ignores).
+# Wheels for a GPU machine that reaches no package index (run here, where pip works): the
+# packages the GPU image lacks, for CPython 3.12 on x86-64 Linux, split into parts of at most
+# 56 MiB (a machine receives at most 64 MiB per call, the working tree included), in $1
+# (default .gpu, which git ignores).  Send one part per call; checks.sh installs them.
 #   benchmarks/gpu/wheels.sh [.gpu]    -> .gpu/part1, .gpu/part2, ...  (see checks.sh)
 set -euo pipefail
 out=${1:-.gpu}
@@ -28,7 +29,7 @@ for wheel in "$out"/wheels/mujoco-4*.whl; do
   done
 done
 tar -C "$out" -cf "$out/wheels.tar" wheels
-split -b 60m -d -a 1 "$out/wheels.tar" "$out/chunk"
+split -b 56m -d -a 1 "$out/wheels.tar" "$out/chunk"
 rm -rf "$out/wheels" "$out/wheels.tar"
 n=0
 for chunk in "$out"/chunk*; do
