@@ -63,6 +63,38 @@ def test_one_control_step_matches_mujocos_c_code(settled_insertion):
     assert warp._wd.nefc.numpy().tolist() == [data.nefc, data.nefc]
 
 
+@pytest.mark.parametrize(
+    "wire",
+    [
+        "rod",
+        pytest.param(
+            "fem",
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="qpos differs by 5.9e-3 after one control step, and MuJoCo Warp's flex "
+                "contacts are not C's (6 against 8 on that step; docs/performance.md)",
+            ),
+        ),
+    ],
+)
+def test_one_control_step_of_a_flex_wire_matches_mujocos_c_code(wire):
+    """From a settled insertion scene: the wire's vertices and every joint after one control
+    step (the rod runs CG on Warp, Newton in C)."""
+    env = wirecraft.make("insertion", wire=wire).unwrapped
+    env.reset(seed=4)
+    model, data = env.model, env.data
+    row = np.empty(mujoco.mj_stateSize(model, STATE_SPEC))
+    mujoco.mj_getState(model, data, row, STATE_SPEC)
+    warp = WarpBatch(model, 1, DEVICE)
+    vertices = warp.bind("flexvert_xpos")
+    warp.state[:] = row
+    warp.step(nstep=SUBSTEPS)
+    mujoco.mj_step(model, data, nstep=SUBSTEPS)
+    mujoco.mj_forward(model, data)
+    np.testing.assert_allclose(warp.bind("qpos")[0], data.qpos, atol=ONE_STEP_QPOS)
+    np.testing.assert_allclose(vertices[0], data.flexvert_xpos, atol=ONE_STEP_QPOS)
+
+
 def test_a_world_stepped_alone_leaves_the_others_as_they_were(settled_insertion):
     model, row = settled_insertion
     warp = WarpBatch(model, 3, DEVICE)
@@ -104,7 +136,7 @@ def test_a_step_retried_with_cg_takes_cgs_result_for_those_worlds_only(settled_i
     newton.state[:] = row
     newton.step(nstep=SUBSTEPS)
     cg = WarpBatch(model, 2, DEVICE, solver="cg")
-    cg._wm.opt.iterations = warp_batch.FALLBACK_ITERATIONS
+    assert cg._wm.opt.iterations == warp_batch.CG_ITERATIONS
     cg.state[:] = row
     cg.step(nstep=SUBSTEPS)
     retried = WarpBatch(model, 2, DEVICE)
