@@ -660,3 +660,42 @@ def test_interrupted_ppo_run_saves_its_last_complete_iteration(tmp_path, monkeyp
     assert run["iterations_done"] == 2 and run["env_steps"] == 32
     rows = ProgressTable(tmp_path / "run" / "progress.csv").rows()
     assert [r["iteration"] for r in rows] == [0, 1]
+
+
+def test_an_exported_policy_acts_as_its_run_and_cannot_be_resumed(tmp_path):
+    """``python -m wirecraft.rl.export``: the actor alone and the run's record, read by
+    ``load_policy`` as the run itself; resuming it is refused."""
+    from wirecraft.rl.export import main as export_main
+
+    run_dir = tmp_path / "ppo"
+    train("ppo", "insertion", SHORT, run_dir, 48, overrides=PPO_TINY, progress=False)
+    evaluation = tmp_path / "eval.json"
+    evaluation.write_text(
+        json.dumps(
+            {
+                "variant": "insertion",
+                "protocol": {"seeds": 1, "episodes_per_seed": 2, "held_out_seed": None},
+                "metrics": {"insert_success": {"mean": 0.5, "std": 0.0, "per_seed": [0.5]}},
+            }
+        )
+    )
+    out = tmp_path / "shipped"
+    argv = [str(run_dir), "--out", str(out), "--command", "wirecraft train ppo ..."]
+    assert export_main([*argv, "--evaluation", str(evaluation)]) == 0
+    record = json.loads((out / RUN_FILE).read_text())
+    assert record["checkpoints"] == [record["latest_checkpoint"]] == ["checkpoints/model_1.pt"]
+    shipped = record["shipped"]
+    assert shipped["train_command"] == "wirecraft train ppo ..." and shipped["from_run"]
+    assert shipped["evaluations"][0]["insert_success"]["mean"] == 0.5
+    full = (run_dir / "checkpoints/model_1.pt").stat().st_size
+    assert (out / "checkpoints/model_1.pt").stat().st_size < full / 3
+    venv = wirecraft.make_vec("insertion", 2, threads=1, **SHORT)
+    obs, _ = venv.reset(seed=1)
+    np.testing.assert_array_equal(
+        load_policy(out, venv).act(obs), load_policy(run_dir, venv).act(obs)
+    )
+    with pytest.raises(ValueError, match="shipped policy"):
+        train("ppo", "insertion", SHORT, out, 96, progress=False, resume=True)
+    assert export_main([*argv]) == 2  # the folder exists
+    assert export_main([str(run_dir), "--out", str(tmp_path / "x"), "--checkpoint", "no.pt"]) == 2
+    assert not (tmp_path / "x").exists()

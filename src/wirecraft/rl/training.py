@@ -217,6 +217,11 @@ def train(
                 f"{run_dir} already holds a run: pass --resume to continue it, or another --out"
             )
         data = read_run(run_dir)
+        if "shipped" in data:
+            raise ValueError(
+                f"{run_dir} is a shipped policy (the actor alone): resume its source run, "
+                f"{data['shipped']['from_run']}"
+            )
         if data["algorithm"] != algorithm:
             raise ValueError(f"{run_dir} holds a {data['algorithm']} run, not {algorithm}")
         check_run_state_revision(run_dir, data)
