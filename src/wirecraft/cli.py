@@ -9,6 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from wirecraft.cli_args import (
+    add_backend_args,
     atomic_path,
     int_list,
     number,
@@ -363,7 +364,8 @@ def _bench_args(p):
         "--num-envs",
         type=int_list(1, MAX_ENVS),
         default=None,
-        help=f"envs suite: comma-separated counts, 1 to {MAX_ENVS} (default: 1,4,16,64,256)",
+        help=f"envs suite: comma-separated counts, 1 to {MAX_ENVS} (default: 1,4,16,64,256; "
+        "with --backend warp 1024,4096,8192,16384,32768)",
     )
     p.add_argument(
         "--threads",
@@ -375,21 +377,9 @@ def _bench_args(p):
         "--warmup",
         type=number(0, 600),
         default=None,
-        help="envs suite: warm-up seconds, up to 600 (default: 1)",
+        help="envs suite: warm-up seconds, up to 600 (default: 1; 5 with --backend warp)",
     )
-    p.add_argument(
-        "--backend",
-        choices=("cpu", "warp"),
-        default=None,
-        help="envs suite: cpu (MuJoCo's batch engine on threads, default) or warp (MuJoCo Warp; "
-        "defaults then: --num-envs 1024,4096,8192,16384,32768, --warmup 5, --seconds 60)",
-    )
-    p.add_argument(
-        "--device",
-        default=None,
-        metavar="DEV",
-        help="envs suite with --backend warp: the Warp device, e.g. cuda:0 (default: Warp's)",
-    )
+    add_backend_args(p, "--device", "envs suite: ")
     p.add_argument(
         "--full-info",
         action="store_true",
@@ -894,18 +884,7 @@ def _train_args(p):
         default=None,
         help="physics threads (0: all CPUs)",
     )
-    p.add_argument(
-        "--backend",
-        choices=("cpu", "warp"),
-        default=None,
-        help="RL: where the physics steps: cpu (default) or warp (MuJoCo Warp, make gpu)",
-    )
-    p.add_argument(
-        "--warp-device",
-        default=None,
-        metavar="DEV",
-        help="RL with --backend warp: the Warp device, e.g. cuda:0 (default: Warp's choice)",
-    )
+    add_backend_args(p, where="RL: ")
     p.add_argument(
         "--episode-seconds",
         type=number(0, MAX_SECONDS, low_open=True),

@@ -209,3 +209,22 @@ def new_folder(path: str | os.PathLike):
         if created and path.is_dir():
             shutil.rmtree(path, ignore_errors=True)
         raise
+
+
+def add_backend_args(parser, device_flag: str = "--warp-device", where: str = "") -> None:
+    """``--backend cpu|warp`` and the Warp device flag, for commands that step environments;
+    ``where`` prefixes the help (``"RL: "``)."""
+    from wirecraft import BACKENDS
+
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default=None,
+        help=f"{where}where the physics steps: cpu (default) or warp (MuJoCo Warp, make gpu)",
+    )
+    parser.add_argument(
+        device_flag,
+        metavar="DEV",
+        default=None,
+        help=f"{where}with --backend warp: the Warp device, e.g. cuda:0 (default: Warp's)",
+    )

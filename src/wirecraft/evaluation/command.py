@@ -17,7 +17,14 @@ DEFAULT_FORCE = 2.0  # N
 
 def configure(p: argparse.ArgumentParser, add_task_args) -> None:
     from wirecraft.cli import MAX_ENVS, MAX_SECONDS, MAX_SEED, MAX_WORKERS
-    from wirecraft.cli_args import number, output_dir, output_file, ray_address, suffixed
+    from wirecraft.cli_args import (
+        add_backend_args,
+        number,
+        output_dir,
+        output_file,
+        ray_address,
+        suffixed,
+    )
 
     add_task_args(p)
     p.add_argument(
@@ -86,18 +93,7 @@ def configure(p: argparse.ArgumentParser, add_task_args) -> None:
         default=None,
         help="environments stepped together",
     )
-    p.add_argument(
-        "--backend",
-        choices=("cpu", "warp"),
-        default=None,
-        help="where the physics steps: cpu (default) or warp (MuJoCo Warp, make gpu)",
-    )
-    p.add_argument(
-        "--warp-device",
-        metavar="DEV",
-        default=None,
-        help="with --backend warp: the Warp device, e.g. cuda:0 (default: Warp's choice)",
-    )
+    add_backend_args(p)
     p.add_argument(
         "--json", metavar="PATH", type=output_file, help="write the results (metrics, episodes)"
     )
