@@ -192,3 +192,24 @@ def test_bench_envs_bad_lists_are_clear_errors(capsys):
     assert main(["bench", "--suite", "envs", "--device", "cuda:0"]) == 2
     assert "--device: applies only with --backend warp" in capsys.readouterr().err
     assert main(["bench", "--suite", "wires", "--backend", "warp"]) == 2
+
+
+def test_bench_envs_reports_a_case_whose_reset_keeps_diverging_and_goes_on(tmp_path, monkeypatch):
+    from wirecraft.bench import envs
+
+    real = envs.measure
+
+    def measure(task, wire, num_envs, *args):
+        if num_envs == 2:
+            raise RuntimeError("the scene diverged while settling at reset, 3 times in a row")
+        return real(task, wire, num_envs, *args)
+
+    monkeypatch.setattr(envs, "measure", measure)
+    path = tmp_path / "rows.json"
+    argv = ["bench", "--suite", "envs", "--num-envs", "1,2", "--threads", "1", "--seconds"]
+    argv += ["0.1", "--warmup", "0", "--out", str(tmp_path), "--json", str(path)]
+    assert main(argv) == 0
+    document = json.loads(path.read_text())
+    assert [r["num_envs"] for r in document["rows"]] == [1]
+    assert [r["num_envs"] for r in document["not_measured"]] == [2]
+    assert "diverged" in document["not_measured"][0]["error"]

@@ -247,6 +247,7 @@ def test_bench_sweeps_warp_to_the_largest_count_that_fits(tmp_path, monkeypatch)
     assert (row["backend"], row["num_envs"], row["threads"]) == ("warp", 2, 0)
     assert row["device"] and row["bytes_per_step"] > 0 and row["overhead_ratio"] > 0
     assert [r["num_envs"] for r in document["did_not_fit"]] == [4] and tried == [2, 4]
+    assert document["not_measured"] == []
     assert document["provenance"]["packages"]["mujoco-warp"]
 
 

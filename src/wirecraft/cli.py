@@ -471,7 +471,7 @@ def cmd_bench(args) -> int:
         seconds = args.seconds or (60.0 if warp else 5.0)
         info = "full" if args.full_info else "training"
         options = _bench_options(args, tasks)
-        rows, too_big = envs.run(
+        rows, too_big, failed = envs.run(
             tasks,
             wire_models,
             counts,
@@ -493,7 +493,7 @@ def cmd_bench(args) -> int:
 
     document = {"suite": args.suite, "rows": rows, "provenance": provenance()}
     if args.suite == "envs":
-        document["did_not_fit"] = too_big
+        document.update(did_not_fit=too_big, not_measured=failed)
     write_json(args.json, document)
     return 0
 

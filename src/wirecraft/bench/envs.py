@@ -10,7 +10,8 @@ section 1; CSV, JSON and a PNG plot.
 ``backend="warp"`` runs the physics on MuJoCo Warp on ``device``: the raw figure is then Warp
 stepping every world on the device with nothing crossing to the host (``physics_only``), the
 environment's step includes the transfers and the task code on the host.  A count that does not
-fit on the device ends that (task, wire) sweep (``run``'s second result lists it).
+fit on the device ends that (task, wire) sweep (``run``'s second result lists it); a case whose
+reset keeps diverging is reported and skipped (the third).
 
 Two configurations (the ``info`` column): ``training`` (the default, as ``wirecraft train`` runs
 it: ``diagnostics=False, sync_envs=False``, success flags and reward terms in ``info``) and
@@ -135,17 +136,17 @@ def run(
     options: dict[str, dict] | None = None,
     backend: str = "cpu",
     device: str | None = None,
-) -> tuple[list[dict], list[dict]]:
+) -> tuple[list[dict], list[dict], list[dict]]:
     """(rows of ``measure`` for every (task, wire, num_envs, threads), the counts that did not
-    fit); ``options``: task -> the task options to build its environments with (``{family:
-    {option: value}}``).  On Warp a count that fails to allocate ends its (task, wire) sweep:
-    the larger ones are not tried."""
+    fit, the cases whose reset kept diverging); ``options``: task -> the task options to build
+    its environments with (``{family: {option: value}}``).  On Warp a count that fails to
+    allocate ends its (task, wire) sweep: the larger ones are not tried."""
     from tqdm import tqdm
 
     options = options or {}
     threads = threads if backend == "cpu" else [0]
     cases = [(t, w, n, k) for t in tasks for w in wires for n in sorted(num_envs) for k in threads]
-    rows, too_big = [], []
+    rows, too_big, failed = [], [], []
     for case in tqdm(cases, desc="bench envs", unit="config"):
         task, wire, count, _ = case
         if any((r["task"], r["wire"]) == (task, wire) and r["num_envs"] <= count for r in too_big):
@@ -155,7 +156,10 @@ def run(
         except MemoryError as err:
             too_big.append({"task": task, "wire": wire, "num_envs": count, "error": str(err)})
             tqdm.write(f"{task}/{wire}: {count} environments do not fit ({err})")
-    return rows, too_big
+        except RuntimeError as err:  # a reset that kept diverging: report it, go on
+            failed.append({"task": task, "wire": wire, "num_envs": count, "error": str(err)})
+            tqdm.write(f"{task}/{wire}, {count} environments: not measured ({err})")
+    return rows, too_big, failed
 
 
 def variant(row: dict) -> str:

@@ -166,6 +166,7 @@ class WarpBatch:
         row = np.empty(offset)
         mujoco.mj_getState(model, template, row, STATE_SPEC)
         self.state[:] = row
+        self._before = np.empty_like(self.state)
         self._outputs: dict[str, np.ndarray] = {}
         self.bytes_up = self.state.nbytes
         self.bytes_down = self.state.nbytes
@@ -192,7 +193,8 @@ class WarpBatch:
         stepped again with CG (module docstring).  The other worlds keep their state and
         fields."""
         keep = self._others(ids)
-        before = self.state.copy()
+        before = self._before
+        np.copyto(before, self.state)  # for the retry and the worlds kept (no allocation)
         saved = {k: v[keep].copy() for k, v in self._outputs.items()}
         self._run(nstep)
         failed = np.flatnonzero(~np.isfinite(self.state).all(axis=1))
