@@ -196,12 +196,13 @@ def test_bench_envs_bad_lists_are_clear_errors(capsys):
 
 def test_bench_envs_reports_a_case_whose_reset_keeps_diverging_and_goes_on(tmp_path, monkeypatch):
     from wirecraft.bench import envs
+    from wirecraft.envs.env import ResetDiverged
 
     real = envs.measure
 
     def measure(task, wire, num_envs, *args):
         if num_envs == 2:
-            raise RuntimeError("the scene diverged while settling at reset, 3 times in a row")
+            raise ResetDiverged("the scene diverged while settling at reset, 3 times in a row")
         return real(task, wire, num_envs, *args)
 
     monkeypatch.setattr(envs, "measure", measure)

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wirecraft.envs.env import CONTROL_HZ, SUBSTEPS
+from wirecraft.envs.env import CONTROL_HZ, SUBSTEPS, ResetDiverged
 
 NUM_ENVS = (1, 4, 16, 64, 256, 1024)
 THREADS = (1, 2)
@@ -156,7 +156,7 @@ def run(
         except MemoryError as err:
             too_big.append({"task": task, "wire": wire, "num_envs": count, "error": str(err)})
             tqdm.write(f"{task}/{wire}: {count} environments do not fit ({err})")
-        except RuntimeError as err:  # a reset that kept diverging: report it, go on
+        except ResetDiverged as err:  # report it, go on
             failed.append({"task": task, "wire": wire, "num_envs": count, "error": str(err)})
             tqdm.write(f"{task}/{wire}, {count} environments: not measured ({err})")
     return rows, too_big, failed

@@ -191,6 +191,10 @@ def _speed_limits(model: mujoco.MjModel) -> np.ndarray:
     return limits
 
 
+class ResetDiverged(RuntimeError):
+    """A new episode's settle diverged ``RESET_ATTEMPTS`` times in a row."""
+
+
 class WireCraftEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": CONTROL_HZ}
 
@@ -413,7 +417,7 @@ class WireCraftEnv(gym.Env):
     def check_reset_attempt(attempt: int) -> None:
         """Raise once the settle diverged ``RESET_ATTEMPTS`` times in a row."""
         if attempt >= RESET_ATTEMPTS:
-            raise RuntimeError(
+            raise ResetDiverged(
                 f"the scene diverged while settling at reset, {attempt} times in a row"
             )
 
