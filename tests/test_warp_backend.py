@@ -194,6 +194,7 @@ def test_the_vector_env_on_warp_follows_the_cpu_backend(task):
         ({"backend": "tpu"}, "backend"),
         ({"warp_solver": "cg"}, "warp_solver"),
         ({"backend": "warp", "device": "cpu", "warp_solver": "pgs"}, "solver"),
+        ({"backend": "warp", "device": "gpu7"}, "device 'gpu7'"),
     ],
 )
 def test_bad_backend_arguments(kwargs, message):

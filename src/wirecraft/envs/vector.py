@@ -109,15 +109,13 @@ class WireCraftVectorEnv(VectorEnv):
         warp_sizes = {k: v for k, v in warp_sizes.items() if v is not None}
         for name, value in warp_sizes.items():
             validation.int_in_range("make_vec", f"warp_{name}", value, 1, 10**7)
+        if warp_solver is not None:  # WarpBatch checks the name
+            warp_sizes["solver"] = warp_solver
         if backend == "warp":
             from wirecraft.envs.warp_batch import WarpBatch
 
-            if warp_solver is not None:
-                warp_sizes["solver"] = warp_solver
             self.batch = WarpBatch(self.model, num_envs, device, **warp_sizes)
         else:
-            if warp_solver is not None:
-                warp_sizes["solver"] = warp_solver
             if device is not None or warp_sizes:
                 given = ["device"] * (device is not None) + [f"warp_{k}" for k in warp_sizes]
                 raise ValueError(f"make_vec: {', '.join(given)} is for backend='warp' only")

@@ -98,7 +98,12 @@ class WarpBatch:
             raise ValueError(f"unknown Warp solver {solver!r}; valid: {', '.join(SOLVERS)}")
         wp, mjw = warp_modules()
         self._wp, self._mjw = wp, mjw
-        self.device = str(wp.get_device(device))
+        try:
+            self.device = str(wp.get_device(device))
+        except ValueError as err:
+            raise ValueError(
+                f"backend='warp': device {device!r}: {err} (e.g. cuda:0, cpu)"
+            ) from None
         self.model, self.nsim = model, int(nsim)
         self.nconmax, self.njmax = int(nconmax), int(njmax)
         # Not forwarded: put_data sizes nothing after its contacts (all bodies at the origin
@@ -146,7 +151,8 @@ class WarpBatch:
             for name, array in vars(group_of(self._wd)).items()
             if isinstance(array, wp.array) and array.ndim and array.shape[0] == self.nsim
         ]
-        self._tainted = np.zeros(self.nsim, bool)
+        self._tainted = np.zeros(self.nsim, bool)  # worlds whose device fields may hold NaN
+        self._non_finite = np.zeros(self.nsim, bool)  # rows the last download found so
         # State rows and where each component sits in them.
         self._components = []
         offset = 0
@@ -197,8 +203,7 @@ class WarpBatch:
         np.copyto(before, self.state)  # for the retry and the worlds kept (no allocation)
         saved = {k: v[keep].copy() for k, v in self._outputs.items()}
         self._run(nstep)
-        failed = np.flatnonzero(~np.isfinite(self.state).all(axis=1))
-        failed = np.setdiff1d(failed, keep)
+        failed = np.setdiff1d(np.flatnonzero(self._non_finite), keep)
         if failed.size and self.solver == "newton":
             self._retry_with_cg(failed, before, nstep)
         if keep.size:
@@ -229,8 +234,7 @@ class WarpBatch:
         crossing to the host, and wait for them: raw MuJoCo Warp physics, for benchmarks.
         The host's state rows are left as they were (the next call uploads them)."""
         with self._wp.ScopedDevice(self.device):
-            for _ in range(nstep):
-                self._mjw.step(self._wm, self._wd)
+            self._substeps(nstep)
             self._wp.synchronize_device(self.device)
 
     @property
@@ -250,12 +254,15 @@ class WarpBatch:
         download the state rows and the bound fields."""
         self._upload()
         with self._wp.ScopedDevice(self.device):
-            for _ in range(nstep):
-                self._mjw.step(self._wm, self._wd)
+            self._substeps(nstep)
             self._positions()
         self._check_overflow()
         self._download_state()
         self._download_outputs(self._outputs)
+
+    def _substeps(self, nstep: int) -> None:
+        for _ in range(nstep):
+            self._mjw.step(self._wm, self._wd)
 
     def _retry_with_cg(self, worlds: np.ndarray, before: np.ndarray, nstep: int) -> None:
         """Step ``worlds`` again from ``before`` with CG; the other worlds keep Newton's
@@ -303,10 +310,10 @@ class WarpBatch:
 
     def _upload(self) -> None:
         wp = self._wp
-        finite = np.isfinite(self.state).all(axis=1)
-        if (self._tainted & finite).any():
-            self._scrub(np.flatnonzero(self._tainted & finite))
-            self._tainted &= ~finite
+        if self._tainted.any():
+            renewed = self._tainted & np.isfinite(self.state).all(axis=1)
+            self._scrub(np.flatnonzero(renewed))
+            self._tainted &= ~renewed
         for name, offset, size in self._components:
             target = getattr(self._wd, name)
             values = self.state[:, offset : offset + size]
@@ -318,7 +325,8 @@ class WarpBatch:
         for name, offset, size in self._components:
             values = getattr(self._wd, name).numpy()
             self.state[:, offset : offset + size] = values.reshape(self.nsim, size)
-        self._tainted |= ~np.isfinite(self.state).all(axis=1)
+        self._non_finite = ~np.isfinite(self.state).all(axis=1)
+        self._tainted |= self._non_finite
 
     def _download_outputs(self, names) -> None:
         for name in names:

@@ -118,8 +118,11 @@ class PPOConfig:
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
-        if self.backend not in ("cpu", "warp"):
-            raise ValueError(f"{owner}: backend must be 'cpu' or 'warp', got {self.backend!r}")
+        from wirecraft import BACKENDS
+
+        if self.backend not in BACKENDS:
+            valid = " or ".join(repr(b) for b in BACKENDS)
+            raise ValueError(f"{owner}: backend must be {valid}, got {self.backend!r}")
         if self.warp_device and self.backend != "warp":
             raise ValueError(f"{owner}: warp_device is for backend='warp' only")
         if self.actor_inputs not in ("state", "relative"):

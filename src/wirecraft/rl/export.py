@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 from pathlib import Path
 
+from wirecraft.cli_args import folder_built_beside
 from wirecraft.rl.common import CHECKPOINT_DIR, RUN_FILE, checkpoint_path, read_run
 
 SHIPPED_METRICS = ("success", "reach_success", "insert_success")
@@ -71,13 +71,11 @@ def export_policy(
         "train_command": command,
         "evaluations": results,
     }
-    staging = out.with_name(out.name + ".partial")
-    shutil.rmtree(staging, ignore_errors=True)
-    (staging / CHECKPOINT_DIR).mkdir(parents=True)
     actor = {key: saved[key] for key in ("actor_state_dict", "iter", "infos") if key in saved}
-    torch.save(actor, staging / name)
-    (staging / RUN_FILE).write_text(json.dumps(record, indent=2, sort_keys=True) + "\n")
-    staging.rename(out)
+    with folder_built_beside(out, "export") as staging:
+        (staging / CHECKPOINT_DIR).mkdir(parents=True)
+        torch.save(actor, staging / name)
+        (staging / RUN_FILE).write_text(json.dumps(record, indent=2, sort_keys=True) + "\n")
     return out
 
 

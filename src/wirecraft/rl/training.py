@@ -544,16 +544,15 @@ def parse_cli_settings(args) -> tuple[int | None, dict]:
         steps = int(value)
     template = config_class(args.algorithm)()
     overrides = dict(parse_override(text, template) for text in args.set)
-    flags = {"num_envs": "num_envs", "seed": "seed", "threads": "threads"}
-    flags.update(backend="backend", warp_device="warp_device")
-    for flag, key in flags.items():
-        value = getattr(args, flag, None)
+    fields = {field.name for field in dataclasses.fields(template)}
+    for name in ("num_envs", "seed", "threads", "backend", "warp_device"):  # flag = field
+        value = getattr(args, name, None)
         if value is None:
             continue
-        if key not in {field.name for field in dataclasses.fields(template)}:
-            name = "--" + flag.replace("_", "-")
-            raise ValueError(f"{name} is for ppo and vision-ppo, not {args.algorithm}")
-        overrides[key] = value
+        if name not in fields:
+            flag = "--" + name.replace("_", "-")
+            raise ValueError(f"{flag} is for ppo and vision-ppo, not {args.algorithm}")
+        overrides[name] = value
     return steps, overrides
 
 
