@@ -641,6 +641,9 @@ def test_ray_tasks_generate_the_same_episode(reference, tmp_path):
         (["--workers", "-1"], "--workers: must be"),
         (["--vcodec", "mpeg1"], "--vcodec: invalid choice"),
         (["--control", "joint"], "drives control='cartesian'"),
+        (["--task", "routing", "--expert", "reactive"], "no reactive expert for task 'routing'"),
+        (["--expert", "oracle"], "--expert: invalid choice"),
+        (["--expert", "reactive", "--policy", "runs/x"], "--expert: applies only with scripted"),
     ],
 )
 def test_bad_input_is_a_clear_error(args, message, tmp_path, capsys):
@@ -662,6 +665,8 @@ def test_existing_folder_needs_resume_and_the_same_settings(reference, tmp_path,
     other_seed = [*CLI_ARGS[:-1], str(SEED + 1), "--out", str(root), "--resume"]
     assert main(other_seed) == 2
     assert "refusing to mix" in capsys.readouterr().err
+    assert main([*CLI_ARGS, "--expert", "reactive", "--out", str(root), "--resume"]) == 2
+    assert "expert: 'scripted' -> 'reactive'" in capsys.readouterr().err
     assert load(root).num_episodes == 2  # untouched
 
     # a dataset of another state revision (or one from before it was recorded) is not continued
@@ -681,6 +686,14 @@ def test_existing_folder_needs_resume_and_the_same_settings(reference, tmp_path,
         assert main([*CLI_ARGS, "--out", str(old), "--resume"]) == 2
         assert f"collected on state revision {revision or 1};" in capsys.readouterr().err
     assert load(old).num_episodes == 2
+
+    # a dataset from before the expert was a setting was scripted: it is continued as such
+    stored["state_revision"] = STATE_REVISION
+    del stored["settings"]["expert"]
+    (old / SETTINGS_FILE).write_text(json.dumps(stored))
+    assert main([*CLI_ARGS, "--episodes", "2", "--out", str(old), "--resume"]) == 0
+    assert main([*CLI_ARGS, "--expert", "reactive", "--out", str(old), "--resume"]) == 2
+    assert "expert: 'scripted' -> 'reactive'" in capsys.readouterr().err
 
 
 def assert_same_episode(a: Episode, b: Episode) -> None:
@@ -709,6 +722,44 @@ def test_episodes_stepped_side_by_side_are_the_single_episodes(task, options):
     attempts = [0, 1, 2, 3]
     side_by_side = run_episodes(settings, attempts, 2)
     for attempt, episode in zip(attempts, side_by_side, strict=True):
+        assert_same_episode(episode, run_episode(settings, attempt))
+
+
+def test_the_reactive_expert_demonstrates_its_own_actions(tmp_path):
+    """``expert="reactive"``: each stored environment action is what
+    ``ReactiveInsertionExpert`` commands for the state an independent run of the same seeded
+    episode reaches, and its episodes are the same stepped side by side."""
+    from wirecraft.datasets.collect import SETTINGS_FILE
+    from wirecraft.experts.reactive import ReactiveInsertionExpert
+
+    settings = CollectSettings(
+        task="insertion",
+        env_kwargs={"connector": "ethernet"},
+        image_size=32,
+        seed=SEED,
+        expert="reactive",
+    )
+    report = collect(settings, tmp_path / "ds", 2, workers=0, progress_bar=False)
+    assert report.saved == 2
+    stored = json.loads((tmp_path / "ds" / SETTINGS_FILE).read_text())
+    assert stored["settings"]["expert"] == "reactive"
+    assert stored["expert"]["class"] == "ReactiveInsertionExpertDemonstrator"
+    dataset = load(tmp_path / "ds")
+    for episode in range(2):
+        actions = column(dataset, "action.env", episode).reshape(-1, 7)
+        seed = int(column(dataset, "seed", episode)[0])
+        env = wirecraft.make("insertion", connector="ethernet", control="cartesian")
+        expert = ReactiveInsertionExpert(env)
+        obs, _ = env.reset(seed=seed)
+        expected = []
+        for _ in range(len(actions)):
+            expected.append(expert.act(obs[None])[0])
+            obs, *_ = env.step(expected[-1])
+        env.close()
+        np.testing.assert_allclose(actions, expected, rtol=0, atol=1e-12)
+        assert column(dataset, "insert_success", episode)[-1]
+    side_by_side = run_episodes(settings, [0, 1, 2], 2)
+    for attempt, episode in enumerate(side_by_side):
         assert_same_episode(episode, run_episode(settings, attempt))
 
 

@@ -576,6 +576,13 @@ def _collect_args(p):
         type=ray_address,
         help="generate with Ray: HOST:PORT, auto, or local (start one here)",
     )
+    p.add_argument(
+        "--expert",
+        choices=("scripted", "reactive"),
+        default=None,
+        help="who demonstrates: the task's scripted expert (default) or its reactive expert "
+        "(no memory: the action is a function of the state; insertion only)",
+    )
     p.add_argument("--keep-failures", action="store_true", help="also save failed episodes")
     p.add_argument("--resume", action="store_true", help="continue the dataset in --out")
     p.add_argument(
@@ -631,6 +638,7 @@ def _collect_args(p):
 
 # collect flags that apply to scripted demonstrations only (not to --policy rollouts).
 SCRIPTED_ONLY = (
+    "--expert",
     "--workers",
     "--ray",
     "--keep-failures",
@@ -684,6 +692,7 @@ def cmd_collect(args) -> int:
         keep_failures=args.keep_failures,
         success_hold_s=0.5 if args.success_hold is None else args.success_hold,
         vcodec=args.vcodec,
+        expert=args.expert or "scripted",
     )
     report = collect(
         settings,

@@ -72,15 +72,15 @@ class CollectSettings:
     keep_failures: bool = False
     success_hold_s: float = 0.5
     vcodec: str = "h264"  # a key of writer.VIDEO_CODECS
+    expert: str = "scripted"  # a name of wirecraft.experts.DEMONSTRATORS
 
     def __post_init__(self) -> None:
         import wirecraft
         from wirecraft.envs.env import steps_per_frame
-        from wirecraft.experts import expert_class
 
         family = wirecraft.family_of(self.task)
         object.__setattr__(self, "task", family)
-        expert = expert_class(family)
+        expert = self.expert_class
         kwargs = dict(self.env_kwargs)
         for key in ("obs_mode", "render_mode", "image_size", "task"):
             if key in kwargs:
@@ -88,7 +88,7 @@ class CollectSettings:
         control = kwargs.setdefault("control", expert.CONTROL)
         if control != expert.CONTROL:
             raise ValueError(
-                f"the scripted {family} expert drives control={expert.CONTROL!r}, "
+                f"the {self.expert} {family} expert drives control={expert.CONTROL!r}, "
                 f"got control={control!r}"
             )
         object.__setattr__(self, "env_kwargs", _with_defaults(family, kwargs))
@@ -110,6 +110,13 @@ class CollectSettings:
         from wirecraft.envs.env import steps_per_frame
 
         return steps_per_frame(self.fps)
+
+    @property
+    def expert_class(self) -> type:
+        """The class of the expert that demonstrates (``wirecraft.experts.demonstrator_class``)."""
+        from wirecraft.experts import demonstrator_class
+
+        return demonstrator_class(self.task, self.expert)
 
     def episode_seed(self, attempt: int) -> int:
         """The reset seed of episode attempt ``attempt`` (independent of workers and order)."""
@@ -156,13 +163,12 @@ def _episode_tools(settings: CollectSettings):
     key = json.dumps(settings.to_dict(), sort_keys=True)
     if key not in _CACHE:
         import wirecraft
-        from wirecraft.experts import expert_class
 
         env = wirecraft.make(
             settings.task, obs_mode="state", image_size=settings.image_size, **settings.env_kwargs
         )
         recorder = EpisodeRecorder(env, settings.fps, source="scripted")
-        _CACHE[key] = (env, recorder, expert_class(settings.task))
+        _CACHE[key] = (env, recorder, settings.expert_class)
     return _CACHE[key]
 
 
@@ -174,12 +180,10 @@ def _expert_config(expert_cls, seed: int | None = None):
     return config
 
 
-def expert_description(task: str) -> dict:
-    """The scripted expert of ``task`` and its configuration (stored with the dataset: a
-    changed expert would make different episodes, so ``--resume`` refuses it)."""
-    from wirecraft.experts import expert_class
-
-    expert_cls = expert_class(task)
+def expert_description(settings: CollectSettings) -> dict:
+    """The expert that demonstrates and its configuration (stored with the dataset: a changed
+    expert would make different episodes, so ``--resume`` refuses it)."""
+    expert_cls = settings.expert_class
     config = dataclasses.asdict(_expert_config(expert_cls))
     config.pop("seed", None)
     return {"class": expert_cls.__name__, "config": json.loads(json.dumps(config, default=str))}
@@ -282,13 +286,12 @@ def run_episodes(settings: CollectSettings | dict, attempts: list[int], slots: i
     gives for its attempt; physics + expert time is shared out among the running slots."""
     from wirecraft.envs.env import CONTROL_HZ
     from wirecraft.envs.vector import info_row
-    from wirecraft.experts import expert_class
 
     if isinstance(settings, dict):
         settings = CollectSettings.from_dict(settings)
     slots = max(1, min(int(slots), len(attempts)))
     venv, _, recorders = _batch_tools(settings, slots)
-    expert_cls = expert_class(settings.task)
+    expert_cls = settings.expert_class
     hold_steps = int(round(settings.success_hold_s * CONTROL_HZ))
     queue = deque(int(a) for a in attempts)
     episodes: dict[int, Episode] = {}
@@ -468,8 +471,9 @@ def _check_out(settings: CollectSettings, out: Path, resume: bool) -> dict | Non
             )
         stored = json.loads(path.read_text())
         check_state_revision(stored, f"{out} was collected", "refusing to mix them in one dataset")
-        diff = _differences(stored["settings"], settings.to_dict())
-        diff += _differences(stored.get("expert", {}), expert_description(settings.task))
+        # Datasets from before the expert was a setting were all scripted.
+        diff = _differences({"expert": "scripted", **stored["settings"]}, settings.to_dict())
+        diff += _differences(stored.get("expert", {}), expert_description(settings))
         if diff:
             raise ValueError(
                 f"{out} was collected with other settings; refusing to mix them ("
@@ -511,7 +515,7 @@ def _open_writer(
             "sources": list(schema.SOURCES),
             "source": "scripted",
             "settings": settings.to_dict(),
-            "expert": expert_description(settings.task),
+            "expert": expert_description(settings),
         },
     )
     return writer

@@ -30,6 +30,8 @@ Only ``control="cartesian"`` and the insertion task; deterministic, no diversity
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from wirecraft.experts.fsm import unwrap_envs
@@ -289,3 +291,35 @@ class ReactiveInsertionExpert:
 def _capped(vector, limit: float) -> np.ndarray:
     length = norm(vector)
     return vector if length <= limit else vector * (limit / length)
+
+
+@dataclass(frozen=True)
+class ReactiveDemoConfig:
+    """The reactive experts have no options a demonstration changes (and no random choices)."""
+
+
+class ReactiveDemonstrator:
+    """A reactive expert behind the scripted experts' interface (``cls(env, config, seed=...)``;
+    ``act(state)`` -> (1, action)), so that ``wirecraft collect --expert reactive`` records its
+    episodes.  ``seed`` is accepted and unused: the expert is deterministic."""
+
+    reactive: type  # set by ``reactive_demonstrator``
+    config_class = ReactiveDemoConfig
+
+    def __init__(self, env, config=None, seed: int | None = None) -> None:
+        self.config = config or self.config_class()
+        self.expert = self.reactive(env)
+
+    def act(self, state) -> np.ndarray:
+        return self.expert.act(np.atleast_2d(state))
+
+
+def reactive_demonstrator(task: str) -> type[ReactiveDemonstrator]:
+    """The demonstrator class of ``task``'s reactive expert (a ValueError naming the task
+    families that have one)."""
+    reactive = REACTIVE_EXPERTS.get(task)
+    return type(
+        f"{reactive.__name__}Demonstrator",
+        (ReactiveDemonstrator,),
+        {"reactive": reactive, "CONTROL": reactive.CONTROL, "__module__": __name__},
+    )
