@@ -1,0 +1,180 @@
+"""The RL results table: every policy shipped in ``checkpoints/``, one row per cell (task
+variant, robot, wire, recipe), mean +/- std across its training seeds.
+
+    python benchmarks/rl_table.py [--checkpoints checkpoints] [--evaluate --workers 1]
+        [--readme README.md]
+
+A folder's figures are the evaluations its record keeps (``shipped.evaluations``: the
+``wirecraft eval --json`` documents given to ``python -m wirecraft.rl.export``, 4 x 16 public
+seeds and the held-out list ``--seed 1000``).  ``--evaluate`` measures them again instead, with
+``wirecraft.evaluation.run_evaluation`` on the same lists, and prints where they differ from the
+record.  Across the folders of a cell (one per training seed): each folder's mean over its seed
+list, then the mean and population std over the folders (``aggregate_runs``, as ``wirecraft eval
+--policy A B C``).  ``--readme`` writes the table between ``<!-- rl-table -->`` and
+``<!-- /rl-table -->``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from wirecraft.evaluation.protocol import aggregate_runs, run_evaluation
+from wirecraft.rl import RUN_FILE
+
+MARKERS = ("<!-- rl-table -->", "<!-- /rl-table -->")
+HELD_OUT_SEED = 1000
+# The reference's state-PPO figures (SR insert, or SR success where a task has no insert flag),
+# by evaluation variant.
+REFERENCE = {
+    "insertion/clearance=0.003/connector=cylinder": 0.938,
+    "insertion/clearance=0.003/connector=cuboid": 0.950,
+    "insertion/clearance=0.003/connector=ethernet": 0.959,
+    "insertion/clearance=0.003/connector=displayport": 0.929,
+    "routing/num_clips=1": 0.953,
+    "seating/channel=straight": 0.823,
+}
+
+
+def recipe(config: dict) -> str:
+    """Which of the documented recipes (docs/baselines.md) trained the run."""
+    if config.get("dagger_init_iterations", 0) > 0:
+        inputs = "goal-relative inputs" if config.get("actor_inputs") == "relative" else "state"
+        return f"PPO + DAgger warm start ({inputs})"
+    return "PPO (SPEC defaults)"
+
+
+def shipped_folders(root: Path) -> list[Path]:
+    return sorted(p.parent for p in root.glob(f"*/{RUN_FILE}"))
+
+
+def folder_evaluations(folder: Path, record: dict, evaluate: bool, workers: int) -> dict:
+    """{"public": metrics, "held_out": metrics} of one shipped folder (None where missing)."""
+    stored = {
+        "held_out" if e["held_out_seed"] is not None else "public": e
+        for e in record["shipped"]["evaluations"]
+    }
+    if not evaluate:
+        return {k: stored.get(k) for k in ("public", "held_out")}
+    env_kwargs = {k: v for k, v in record["env_kwargs"].items() if k != "obs_mode"}
+    fresh = {}
+    for name, seed in (("public", None), ("held_out", HELD_OUT_SEED)):
+        payload = run_evaluation(
+            record["task"],
+            str(folder),
+            seeds=4,
+            episodes=16,
+            seed=seed,
+            workers=workers,
+            progress=False,
+            **env_kwargs,
+        ).payload
+        fresh[name] = {"variant": payload["variant"], **payload["metrics"]}
+        old = stored.get(name)
+        for metric in ("reach_success", "insert_success", "success"):
+            if old and metric in old and old[metric]["mean"] != fresh[name][metric]["mean"]:
+                print(
+                    f"{folder.name} {name} {metric}: recorded {old[metric]['mean']:.4f}, "
+                    f"measured {fresh[name][metric]['mean']:.4f}",
+                    file=sys.stderr,
+                )
+    return fresh
+
+
+def cells(root: Path, evaluate: bool, workers: int) -> dict:
+    """(variant, robot, wire, recipe) -> the folders' records and evaluations."""
+    grouped: dict[tuple, list] = {}
+    for folder in shipped_folders(root):
+        record = json.loads((folder / RUN_FILE).read_text())
+        evaluations = folder_evaluations(folder, record, evaluate, workers)
+        variant = (evaluations["public"] or evaluations["held_out"])["variant"]
+        kwargs = record["env_kwargs"]
+        key = (variant, kwargs.get("robot", "ur5"), kwargs.get("wire", "articulated"))
+        key += (recipe(record["config"]),)
+        grouped.setdefault(key, []).append((folder, record, evaluations))
+    return grouped
+
+
+def across(runs: list, split: str, metric: str) -> str:
+    payloads = [
+        {"metrics": {metric: e[split][metric]}}
+        for _, _, e in runs
+        if e[split] and metric in e[split]
+    ]
+    if len(payloads) < len(runs):
+        return "-"
+    value = aggregate_runs(payloads)[metric]
+    if len(payloads) == 1:
+        return f"{100 * value['mean']:.1f} %"
+    return f"{100 * value['mean']:.1f} +/- {100 * value['std']:.1f} %"
+
+
+def wall_range(minutes: list[float]) -> str:
+    low, high = round(min(minutes)), round(max(minutes))
+    return f"{low}" if low == high else f"{low}-{high}"
+
+
+def table(grouped: dict) -> str:
+    lines = [
+        "| cell | robot, wire | recipe | training seeds | SR reach | SR insert / success "
+        "| held out | reference | env steps, wall time per run |",
+        "|---|---|---|---:|---:|---:|---:|---:|---|",
+    ]
+    for (variant, robot, wire, how), runs in grouped.items():
+        first = runs[0][2]["public"] or runs[0][2]["held_out"]
+        metric = "insert_success" if "insert_success" in first else "success"
+        seeds = ", ".join(str(r["config"].get("seed", 0)) for _, r, _ in runs)
+        steps = sorted({r["env_steps"] for _, r, _ in runs})
+        minutes = [r["wall_time_s"] / 60 for _, r, _ in runs]
+        reference = REFERENCE.get(variant)
+        lines.append(
+            f"| {variant} | {robot}, {wire} | {how} | {seeds} | "
+            f"{across(runs, 'public', 'reach_success')} | **{across(runs, 'public', metric)}** | "
+            f"{across(runs, 'held_out', metric)} | "
+            f"{'-' if reference is None else f'{100 * reference:.1f} %'} | "
+            f"{'/'.join(f'{s / 1e6:.2f}M' for s in steps)}, "
+            f"{wall_range(minutes)} min |"
+        )
+    return "\n".join(lines)
+
+
+def write_readme(path: Path, text: str) -> None:
+    """Replace the block between ``MARKERS`` in ``path`` with ``text``."""
+    body = path.read_text()
+    start, end = (body.find(m) for m in MARKERS)
+    if start < 0 or end < start:
+        raise SystemExit(f"{path}: no {MARKERS[0]} ... {MARKERS[1]} block to replace")
+    body = body[: start + len(MARKERS[0])] + "\n" + text + "\n" + body[end:]
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(body)
+    os.replace(tmp, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--checkpoints", type=Path, default=Path("checkpoints"))
+    parser.add_argument(
+        "--evaluate", action="store_true", help="measure every folder again (4 x 16, twice)"
+    )
+    parser.add_argument("--workers", type=int, default=1, help="with --evaluate")
+    parser.add_argument("--readme", type=Path, help="write the table into this file's block")
+    args = parser.parse_args(argv)
+    if args.workers < 1:
+        parser.error(f"--workers must be >= 1, got {args.workers}")
+    if not args.evaluate and args.workers != 1:
+        parser.error("--workers applies only with --evaluate")
+    if not shipped_folders(args.checkpoints):
+        parser.error(f"no shipped policy (*/{RUN_FILE}) under {args.checkpoints}")
+    text = table(cells(args.checkpoints, args.evaluate, args.workers))
+    print(text)
+    if args.readme:
+        write_readme(args.readme, text)
+        print(f"wrote the RL table into {args.readme}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

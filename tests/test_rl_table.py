@@ -1,0 +1,57 @@
+"""``benchmarks/rl_table.py``: shipped folders grouped into cells, aggregated across training
+seeds as ``aggregate_runs`` does (mean and population std of the runs' means)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from wirecraft.rl import RUN_FILE
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def rl_table(load_benchmark):
+    return load_benchmark("rl_table")
+
+
+def shipped_copy(source: Path, out: Path, seed: int, insert: float) -> None:
+    shutil.copytree(source, out)
+    record = json.loads((out / RUN_FILE).read_text())
+    record["config"]["seed"] = seed
+    for evaluation in record["shipped"]["evaluations"]:
+        evaluation["insert_success"]["mean"] = insert
+    (out / RUN_FILE).write_text(json.dumps(record))
+
+
+def test_training_seeds_of_a_cell_are_one_row(rl_table, tmp_path):
+    source = ROOT / "checkpoints" / "ppo_insertion_cylinder"
+    shipped_copy(source, tmp_path / "a", 0, 0.9)
+    shipped_copy(source, tmp_path / "b", 1, 1.0)
+    shipped_copy(ROOT / "checkpoints" / "ppo_insertion_cuboid", tmp_path / "c", 0, 0.75)
+    readme = tmp_path / "README.md"
+    readme.write_text("intro\n<!-- rl-table -->\nold\n<!-- /rl-table -->\nend\n")
+    assert rl_table.main(["--checkpoints", str(tmp_path), "--readme", str(readme)]) == 0
+    rows = [line for line in readme.read_text().splitlines() if line.startswith("| insertion")]
+    assert len(rows) == 2
+    cylinder = next(r for r in rows if "connector=cylinder" in r)
+    # mean 0.95, population std 0.05 of the two runs' means, on both seed lists
+    assert "| 0, 1 |" in cylinder
+    assert cylinder.count("95.0 +/- 5.0 %") == 2
+    assert "93.8 %" in cylinder  # the reference's figure for the cell
+    cuboid = next(r for r in rows if "connector=cuboid" in r)
+    assert cuboid.count("75.0 %") == 2
+    assert "old" not in readme.read_text() and readme.read_text().endswith("end\n")
+
+
+def test_bad_input_is_a_clear_error(rl_table, tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        rl_table.main(["--checkpoints", str(tmp_path)])
+    assert "no shipped policy" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        rl_table.main(["--workers", "2"])
+    assert "--workers applies only with --evaluate" in capsys.readouterr().err
