@@ -86,7 +86,18 @@ def run(dataset):
         (out / "checkpoints" / "last" / "pretrained_model" / "config.json").read_text()
     )
     resumed = _run(
-        [BIN / "wirecraft", "train", "act", "--out", out, "--resume", "--steps", "4"],
+        [
+            BIN / "wirecraft",
+            "train",
+            "act",
+            "--out",
+            out,
+            "--resume",
+            "--steps",
+            "4",
+            "--torch-threads",
+            "1",
+        ],
         cwd=dataset.parent,
     )
     return out, first.stdout + first.stderr, resumed.stdout + resumed.stderr, step_2
@@ -136,7 +147,24 @@ def test_the_run_records_its_provenance(run, dataset):
     first, second = record["sessions"]
     assert first["command"][:3] == ["wirecraft", "train", "act"]
     assert (first["last_step"], second["resumed_from_step"], second["last_step"]) == (2, 2, 4)
+    assert (first["torch_threads"], second["torch_threads"]) == (None, 1)
     assert first["provenance"]["packages"]["lerobot"]
+
+
+def test_torch_threads_reach_the_training_process(dataset, tmp_path, monkeypatch):
+    """``--torch-threads N`` is torch's thread count in lerobot-train's process (torch reads
+    OMP_NUM_THREADS at start); without it the variables are left as they are."""
+    from wirecraft.il import train as il_train
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    seen = []
+    monkeypatch.setattr(il_train, "run_lerobot_train", lambda args, env: seen.append(env) or 0)
+    for threads in (1, None):
+        il_train.train("act", dataset, tmp_path / f"run{threads}", steps=2, torch_threads=threads)
+    assert (seen[0]["OMP_NUM_THREADS"], seen[0]["MKL_NUM_THREADS"]) == ("1", "1")
+    assert "OMP_NUM_THREADS" not in seen[1]
+    with pytest.raises(ValueError, match="torch_threads: must be an integer >= 1"):
+        il_train.train("act", dataset, tmp_path / "bad", torch_threads=0)
 
 
 def test_eval_sweeps_the_checkpoints(run, tmp_path):
@@ -191,6 +219,8 @@ def test_bad_input_is_refused_before_any_work(dataset, tmp_path, capsys):
         "--pretrained",
     )
     _bad(base + ["--dataset", str(dataset), "--num-envs", "4"], capsys, "--num-envs")
+    _bad(base + ["--dataset", str(dataset), "--torch-threads", "0"], capsys, "--torch-threads")
+    _bad(["train", "ppo", "--out", str(out), "--torch-threads", "1"], capsys, "--torch-threads")
     _bad(["train", "smolvla", "--dataset", str(dataset), "--out", str(out)], capsys, "--pretrained")
     _bad(["train", "pi05", "--dataset", str(dataset), "--out", str(out)], capsys, "--pretrained")
     _bad(base + ["--resume"], capsys, "--resume")

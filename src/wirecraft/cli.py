@@ -842,7 +842,10 @@ IL_FLAGS = (
     "--pretrained",
     "--policy-arg",
     "--train-arg",
+    "--torch-threads",
 )
+# Imitation flags a resumed run takes again (the others are the run's settings).
+IL_SESSION_FLAGS = ("--train-arg", "--torch-threads")
 RL_FLAGS = (
     "--num-envs",
     "--threads",
@@ -944,6 +947,13 @@ def _train_args(p):
         help="any other lerobot-train option, e.g. save_freq=5000, num_workers=2, "
         "eval.n_episodes=16, env_eval_freq=0",
     )
+    il.add_argument(
+        "--torch-threads",
+        type=number(1, 1024, integer=True),
+        default=None,
+        help="torch's CPU threads in the training process (OMP_NUM_THREADS; default: torch's, "
+        "one per core); 1 beside other busy jobs",
+    )
 
 
 def cmd_train_il(args) -> int:
@@ -955,7 +965,8 @@ def cmd_train_il(args) -> int:
     if args.seed is not None:
         train_args["seed"] = str(args.seed)
     if args.resume:
-        only_with(args, "a new run (a resumed run keeps its settings)", *IL_FLAGS[:-1])
+        new_run_flags = [f for f in IL_FLAGS if f not in IL_SESSION_FLAGS]
+        only_with(args, "a new run (a resumed run keeps its settings)", *new_run_flags)
         options = {"steps": args.steps, "train_args": train_args}
     else:
         if args.dataset is None:
@@ -969,6 +980,7 @@ def cmd_train_il(args) -> int:
             "train_args": train_args,
             "pretrained": args.pretrained,
         }
+    options["torch_threads"] = args.torch_threads
     command = ["wirecraft", *getattr(args, "argv", sys.argv[1:])]
     record = train(
         args.algorithm, args.dataset, args.out, resume=args.resume, command=command, **options

@@ -533,6 +533,11 @@ def train(
     from wirecraft.provenance import provenance
 
     out = Path(out)
+    torch_threads = options.pop("torch_threads", None)
+    if torch_threads is not None and (
+        isinstance(torch_threads, bool) or not isinstance(torch_threads, int) or torch_threads < 1
+    ):
+        raise usage("torch_threads", f"must be an integer >= 1, got {torch_threads!r}")
     if resume:
         record = read_record(out)
         if record.get("algorithm") not in (None, algorithm):
@@ -552,11 +557,17 @@ def train(
         "lerobot_train": args,
         "resumed_from_step": settings.get("resumed_from_step"),
         "steps": settings.get("steps"),
+        "torch_threads": torch_threads,
         "provenance": provenance(),
     }
+    env = offline_env(torch_home)
+    if torch_threads:
+        # Torch's default, one intra-op thread per core, oversubscribes the cores next to other
+        # busy processes (docs/lerobot.md measures what that costs).
+        env.update(OMP_NUM_THREADS=str(torch_threads), MKL_NUM_THREADS=str(torch_threads))
     start = time.time()
     try:
-        code = run_lerobot_train(args, offline_env(torch_home))
+        code = run_lerobot_train(args, env)
     finally:
         if out.is_dir():
             session.update(
