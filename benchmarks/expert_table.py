@@ -25,6 +25,7 @@ from pathlib import Path
 
 from wirecraft.assets.robots import ROBOTS
 from wirecraft.assets.wires import WIRE_MODELS
+from wirecraft.cli_args import write_block
 from wirecraft.evaluation.protocol import run_evaluation
 from wirecraft.tasks import TASKS
 
@@ -108,22 +109,6 @@ def matrix(rows, pairs) -> str:
     return "\n".join(lines)
 
 
-def write_readme(path: Path, text: str) -> None:
-    """Replace the table between ``MARKERS`` in ``path`` with ``text``."""
-    body = path.read_text()
-    start, end = (body.find(m) for m in MARKERS)
-    if start < 0 or end < start:
-        raise SystemExit(f"{path}: no {MARKERS[0]} ... {MARKERS[1]} block to replace")
-    body = body[: start + len(MARKERS[0])] + "\n" + text + "\n" + body[end:]
-    write_atomic_text(path, body)
-
-
-def write_atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", required=True, type=Path, help="directory of per-cell JSON")
@@ -192,7 +177,10 @@ def main() -> None:
     print(table(rows))
     if args.readme:
         pairs = list(dict.fromkeys((r[2], r[3]) for r in rows))
-        write_readme(args.readme, matrix(rows, pairs))
+        try:
+            write_block(args.readme, MARKERS, matrix(rows, pairs))
+        except ValueError as err:
+            raise SystemExit(str(err)) from None
         print(f"wrote the status table into {args.readme}")
 
 

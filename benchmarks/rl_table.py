@@ -18,10 +18,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
+from wirecraft.cli_args import write_block
 from wirecraft.evaluation.protocol import aggregate_runs, run_evaluation
 from wirecraft.rl import RUN_FILE
 
@@ -141,18 +141,6 @@ def table(grouped: dict) -> str:
     return "\n".join(lines)
 
 
-def write_readme(path: Path, text: str) -> None:
-    """Replace the block between ``MARKERS`` in ``path`` with ``text``."""
-    body = path.read_text()
-    start, end = (body.find(m) for m in MARKERS)
-    if start < 0 or end < start:
-        raise SystemExit(f"{path}: no {MARKERS[0]} ... {MARKERS[1]} block to replace")
-    body = body[: start + len(MARKERS[0])] + "\n" + text + "\n" + body[end:]
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(body)
-    os.replace(tmp, path)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--checkpoints", type=Path, default=Path("checkpoints"))
@@ -171,7 +159,10 @@ def main(argv: list[str] | None = None) -> int:
     text = table(cells(args.checkpoints, args.evaluate, args.workers))
     print(text)
     if args.readme:
-        write_readme(args.readme, text)
+        try:
+            write_block(args.readme, MARKERS, text)
+        except ValueError as err:
+            parser.error(str(err))
         print(f"wrote the RL table into {args.readme}")
     return 0
 

@@ -160,6 +160,19 @@ def atomic_path(path: str | os.PathLike):
         tmp.unlink(missing_ok=True)
 
 
+def write_block(path: str | os.PathLike, markers: tuple[str, str], text: str) -> None:
+    """Replace what lies between the two ``markers`` in the file ``path`` (a table a script
+    generates inside README.md) with ``text``, atomically; a ValueError if they are missing."""
+    path = Path(path)
+    body = path.read_text()
+    start, end = (body.find(m) for m in markers)
+    if start < 0 or end < start:
+        raise ValueError(f"{path}: no {markers[0]} ... {markers[1]} block to replace")
+    body = body[: start + len(markers[0])] + "\n" + text + "\n" + body[end:]
+    with atomic_path(path) as tmp:
+        tmp.write_text(body)
+
+
 def write_json(path: str | os.PathLike | None, payload) -> None:
     """Write results atomically (a crash never leaves half a file)."""
     if not path:
