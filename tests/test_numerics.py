@@ -110,6 +110,21 @@ def test_dot_and_norm_match_numpy_and_give_floats_for_vectors():
     np.testing.assert_allclose(numerics.dot(x, x[0, 0]), x @ x[0, 0], rtol=1e-14)
 
 
+@pytest.mark.parametrize(
+    ("a", "b"),
+    [
+        (RNG.normal(size=3), RNG.normal(size=3)),
+        (RNG.normal(size=(50, 3)), RNG.normal(size=(50, 3))),
+        (RNG.normal(size=(4, 5, 3)), RNG.normal(size=3)),
+        ([0.0, 0.0, 1.0], RNG.normal(size=(6, 3))),
+    ],
+)
+def test_cross_is_numpys_bit_for_bit(a, b):
+    ours = numerics.cross(a, b)
+    assert ours.shape == np.cross(a, b).shape
+    assert np.array_equal(ours, np.cross(a, b))
+
+
 def test_the_sum_order_is_fixed_left_to_right():
     # 1e16 + 1 - 1e16 is 0 when added left to right and 1 when the last two pair first.
     assert numerics.dot([1e16, 1.0, -1e16], [1.0, 1.0, 1.0]) == 0.0

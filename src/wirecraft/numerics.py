@@ -59,6 +59,17 @@ def norm(x, axis: int = -1, keepdims: bool = False) -> np.ndarray | float:
     return float(length) if length.ndim == 0 else length
 
 
+def cross(a, b) -> np.ndarray:
+    """The cross product of 3-vectors (broadcast over leading axes): the same products and
+    differences as ``numpy.cross``, so the same bits, without its axis handling (a tenth of the
+    time on one vector, where the experts call it)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def matmul(a, b) -> np.ndarray:
     """``a @ b`` with numpy's rules for 1-D operands and stacked (batched) matrices."""
     a = np.asarray(a, dtype=float)

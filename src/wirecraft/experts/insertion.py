@@ -59,7 +59,7 @@ from wirecraft.experts.base import (
 )
 from wirecraft.experts.fsm import Phase
 from wirecraft.geometry import axis_angle_to_mat, rotation_error
-from wirecraft.numerics import dot, matmul, norm
+from wirecraft.numerics import cross, dot, matmul, norm
 
 
 # -- the privileged state it reads ------------------------------------------------------------
@@ -295,13 +295,13 @@ def grasp_pose(grasp_point, plug_rot, up, table_height, *, back, min_height, pit
     z = -up
     best = None
     for sign in (1.0, -1.0):
-        y = sign * np.cross(up, axis)
-        rot = np.column_stack([np.cross(y, z), y, z])
+        y = sign * cross(up, axis)
+        rot = np.column_stack([cross(y, z), y, z])
         if best is None or rotation_angle(rot, reference) < rotation_angle(best, reference):
             best = rot
     # The lean lets the gripper later pitch forward (to keep a plug that turns in the pads
     # aligned) without its pads reaching the port's face.
-    lean = axis_angle_to_mat(np.cross(up, axis) * pitch)
+    lean = axis_angle_to_mat(cross(up, axis) * pitch)
     if dot(-matmul(lean, best)[:, 2], axis) > 0:
         lean = lean.T
     return grasp, matmul(lean, best)
@@ -312,7 +312,7 @@ def plug_goal_rot(port_rot, plug_rot, symmetry: int) -> np.ndarray:
     connector's ``symmetry``, 0: continuous) nearest to the plug's current roll."""
     axis = port_rot[:, 0]
     up = plug_rot[:, 2] - dot(plug_rot[:, 2], axis) * axis
-    roll = math.atan2(dot(np.cross(port_rot[:, 2], up), axis), dot(port_rot[:, 2], up))
+    roll = math.atan2(dot(cross(port_rot[:, 2], up), axis), dot(port_rot[:, 2], up))
     if symmetry > 0:
         step = 2 * math.pi / symmetry
         roll = step * round(roll / step)
@@ -634,7 +634,7 @@ class InsertionExpert(ScriptedExpert):
         and sliding out; tipped first with the tip pressed home, it rests in that pose."""
         view = self.views[i]
         axis = plug_rot[:, 0]
-        across = np.cross(view.up, axis)
+        across = cross(view.up, axis)
         length = norm(across)
         if length < 1e-6:  # a vertical socket: no sag direction
             return plug_rot

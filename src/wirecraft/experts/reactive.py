@@ -37,7 +37,7 @@ import numpy as np
 from wirecraft.experts.fsm import unwrap_envs
 from wirecraft.experts.insertion import grasp_pose, gripper_for_gap, plug_goal_rot
 from wirecraft.geometry import quat_to_mat, rotation_error
-from wirecraft.numerics import dot, matmul, norm
+from wirecraft.numerics import cross, dot, matmul, norm
 from wirecraft.registry import Registry
 
 PHASES = (
@@ -267,7 +267,7 @@ class ReactiveInsertionExpert:
         drive = min(drive, self.gain * (dot(seated - state[lay.entry], axis) + self.push - along))
         tip_move = _capped(drive * axis - self.gain * lateral, self.align_speed)
         turn = self.gain * twist
-        move = tip_move - np.cross(turn, tip - tcp)  # the turn about the TCP moves the tip too
+        move = tip_move - cross(turn, tip - tcp)  # the turn about the TCP moves the tip too
         # Low over the table and far from the socket, rise first (the port hangs 5-18 cm up).
         far = norm(offset - dot(offset, up) * up)
         free = max(

@@ -78,7 +78,7 @@ from wirecraft import validation
 from wirecraft.experts.base import EXPERTS, ScriptedExpert, flat, horizontal, rotation_angle
 from wirecraft.experts.fsm import Phase
 from wirecraft.geometry import arc_lengths, resample
-from wirecraft.numerics import arctan2, dot, matmul, norm
+from wirecraft.numerics import arctan2, cross, dot, matmul, norm
 from wirecraft.tasks.routing.options import MAX_CLIPS
 
 
@@ -276,8 +276,8 @@ class RoutingExpert(ScriptedExpert):
         z = -up
         rots = []
         for sign in (1.0, -1.0):
-            y = sign * np.cross(up, axis)
-            rots.append(np.column_stack([np.cross(y, z), y, z]))
+            y = sign * cross(up, axis)
+            rots.append(np.column_stack([cross(y, z), y, z]))
         return rots
 
     def _down_rot(self, i, axis, near=None):
@@ -528,7 +528,7 @@ class RoutingExpert(ScriptedExpert):
         it on into the slot."""
         cfg, env = self.config, self.envs[i]
         slot, axis, clip = self._clip_geometry(i)
-        lateral = np.cross(self._up(i), axis)
+        lateral = cross(self._up(i), axis)
         pad = env.model.geom(env.robot.pad_geom_names[0])
         room = max(clip.slot_width / 2 - pad.size[1], 0.0)
         crossing = self._wire_across_slot(i)
@@ -768,7 +768,7 @@ class RoutingExpert(ScriptedExpert):
         slot, axis, _ = self._clip_geometry(i)
         direction = fsm.get("direction")[i]
         sign = 1.0 if dot(axis, direction) >= 0 else -1.0
-        lateral = np.cross(up, axis)
+        lateral = cross(up, axis)
         if name in ("pull_back", "push"):
             crossing = self._wire_across_slot(i)
             if crossing is not None:

@@ -126,7 +126,7 @@ from wirecraft.assets.wires import WIRE_MODELS
 from wirecraft.experts.base import EXPERTS, TABLE_Z, UP, ScriptedExpert, flat, horizontal
 from wirecraft.experts.fsm import Phase, unwrap_envs
 from wirecraft.geometry import arc_lengths, axis_angle_to_mats
-from wirecraft.numerics import arctan2, dot, matmul, norm
+from wirecraft.numerics import arctan2, cross, dot, matmul, norm
 from wirecraft.sensors import contact_push
 
 # The seating expert's per-wire settings, in one place: wire model -> {config field: value}
@@ -647,7 +647,7 @@ class SeatingExpert(ScriptedExpert):
             offset, (half_long, half_short), long = self._pad_frame(i, pad)
             centre = matmul(tcp_rot, offset)
             along = horizontal(matmul(tcp_rot, long), UP)
-            across = np.cross(UP, along)
+            across = cross(UP, along)
             # A grid over the bottom face: a 3 mm wall can cross the pad between its corners.
             face = np.array(
                 [
