@@ -1,7 +1,7 @@
 """Clearance as a difficulty axis: one insertion policy evaluated under the protocol at several
 plug-socket clearances.
 
-    python benchmarks/clearance_sweep.py --policy checkpoints/ppo_insertion_cylinder \\
+    python benchmarks/clearance_sweep.py --policy checkpoints/ppo_insertion_cylinder_seed0 \\
         --connector cylinder --clearances 0.5,1,2,3 --out out/clearance
 
 Prints SR reach / insert (mean +/- std over seeds) and the failure labels per clearance (mm),

@@ -29,10 +29,10 @@ def shipped_copy(source: Path, out: Path, seed: int, insert: float) -> None:
 
 
 def test_training_seeds_of_a_cell_are_one_row(rl_table, tmp_path):
-    source = ROOT / "checkpoints" / "ppo_insertion_cylinder"
+    source = ROOT / "checkpoints" / "ppo_insertion_cylinder_seed0"
     shipped_copy(source, tmp_path / "a", 0, 0.9)
     shipped_copy(source, tmp_path / "b", 1, 1.0)
-    shipped_copy(ROOT / "checkpoints" / "ppo_insertion_cuboid", tmp_path / "c", 0, 0.75)
+    shipped_copy(ROOT / "checkpoints" / "ppo_insertion_cuboid_seed0", tmp_path / "c", 0, 0.75)
     readme = tmp_path / "README.md"
     readme.write_text("intro\n<!-- rl-table -->\nold\n<!-- /rl-table -->\nend\n")
     assert rl_table.main(["--checkpoints", str(tmp_path), "--readme", str(readme)]) == 0
