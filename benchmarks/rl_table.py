@@ -21,7 +21,7 @@ import json
 import sys
 from pathlib import Path
 
-from wirecraft.cli_args import write_block
+from wirecraft.cli_args import number, write_block
 from wirecraft.evaluation.protocol import aggregate_runs, run_evaluation
 from wirecraft.rl import RUN_FILE
 
@@ -147,16 +147,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--evaluate", action="store_true", help="measure every folder again (4 x 16, twice)"
     )
-    parser.add_argument("--workers", type=int, default=1, help="with --evaluate")
+    parser.add_argument(
+        "--workers", type=number(1, 1024, integer=True), default=None, help="with --evaluate"
+    )
     parser.add_argument("--readme", type=Path, help="write the table into this file's block")
     args = parser.parse_args(argv)
-    if args.workers < 1:
-        parser.error(f"--workers must be >= 1, got {args.workers}")
-    if not args.evaluate and args.workers != 1:
+    if not args.evaluate and args.workers is not None:
         parser.error("--workers applies only with --evaluate")
     if not shipped_folders(args.checkpoints):
         parser.error(f"no shipped policy (*/{RUN_FILE}) under {args.checkpoints}")
-    text = table(cells(args.checkpoints, args.evaluate, args.workers))
+    text = table(cells(args.checkpoints, args.evaluate, args.workers or 1))
     print(text)
     if args.readme:
         try:

@@ -30,6 +30,7 @@ Only ``control="cartesian"`` and the insertion task; deterministic, no diversity
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -314,6 +315,7 @@ class ReactiveDemonstrator:
         return self.expert.act(np.atleast_2d(state))
 
 
+@functools.cache  # one class per task: collect asks for it in every worker and episode run
 def reactive_demonstrator(task: str) -> type[ReactiveDemonstrator]:
     """The demonstrator class of ``task``'s reactive expert (a ValueError naming the task
     families that have one)."""
