@@ -210,6 +210,9 @@ class VisionPPOConfig(PPOConfig):
     bc_batch_size: int = 64
     bc_learning_rate: float = 3e-4
     bc_train_backbone: bool = True
+    # DAgger after the teacher's own rollouts: waves in which the clone drives (teacher needed)
+    bc_dagger_waves: int = 0
+    bc_dagger_envs: int = 16  # environments per wave, one episode each
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -232,6 +235,14 @@ class VisionPPOConfig(PPOConfig):
         for name in ("queries_per_camera", "token_dim", "attention_heads", "bc_transitions"):
             _int_at_least(owner, name, getattr(self, name), 1)
         _int_at_least(owner, "bc_epochs", self.bc_epochs, 0)
+        _int_at_least(owner, "bc_dagger_waves", self.bc_dagger_waves, 0)
+        _int_at_least(owner, "bc_dagger_envs", self.bc_dagger_envs, 1)
+        if self.bc_dagger_waves and self.teacher is None:
+            raise ValueError(
+                f"{owner}: bc_dagger_waves needs a teacher that labels any state: set teacher "
+                "to a state-policy run directory (the scripted expert's action depends on its "
+                "own history, so it cannot label the clone's states)"
+            )
         _int_at_least(owner, "bc_batch_size", self.bc_batch_size, 1)
         _positive(owner, "bc_learning_rate", self.bc_learning_rate)
         if self.token_dim % self.attention_heads:

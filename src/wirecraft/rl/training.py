@@ -484,6 +484,7 @@ def _vision_encoder(cfg, run: Run, progress: bool):
     )
     writer = SummaryWriter(log_dir=str(run.dir))
     started = time.monotonic()
+    waves = []
     try:
         losses = vision.behaviour_clone(
             encoder,
@@ -493,6 +494,35 @@ def _vision_encoder(cfg, run: Run, progress: bool):
             progress=progress,
             log=lambda epoch, loss: writer.add_scalar("BC/loss", loss, epoch),
         )
+        for wave in range(1, cfg.bc_dagger_waves + 1):
+            # the teacher's share halves each wave; the last wave is the clone's alone
+            beta = 0.5**wave if wave < cfg.bc_dagger_waves else 0.0
+            labelled, rates = vision.dagger_wave(
+                data["task"],
+                data["env_kwargs"],
+                cfg.teacher,
+                lambda obs: vision.student_actions(encoder, actor, obs),
+                beta,
+                num_envs=cfg.bc_dagger_envs,
+                seed=cfg.seed + 104_729 + wave,
+                threads=cfg.threads,
+                progress=progress,
+            )
+            teacher_data = vision.concatenate(teacher_data, labelled)
+            for name, rate in rates.items():
+                writer.add_scalar(f"BC/dagger_{name}", rate, wave)
+            epochs_before = len(losses)
+            losses += vision.behaviour_clone(
+                encoder,
+                actor,
+                teacher_data,
+                cfg,
+                progress=progress,
+                log=lambda epoch, loss, start=epochs_before: writer.add_scalar(
+                    "BC/loss", loss, start + epoch
+                ),
+            )
+            waves.append({"beta": beta, **rates, "transitions": int(len(teacher_data["actions"]))})
     finally:
         writer.close()
     vision.save_encoder(encoder, cfg, encoder_file)
@@ -501,6 +531,7 @@ def _vision_encoder(cfg, run: Run, progress: bool):
         "teacher": cfg.teacher or "scripted expert",
         "transitions": int(len(teacher_data["actions"])),
         "epoch_losses": losses,
+        "dagger_waves": waves,
         "wall_time_s": time.monotonic() - started,
     }
     run.save()

@@ -8,7 +8,10 @@ privileged state.
 
 Training, in two stages:
 1. Behaviour cloning: a teacher (a trained state-policy run, or the task's scripted expert)
-   drives the environments; the encoder and the head learn its actions (MSE).
+   drives the environments; the encoder and the head learn its actions (MSE).  With
+   ``bc_dagger_waves`` (a state-policy teacher only), DAgger waves follow: the clone drives a
+   growing share of the steps, the teacher labels every state, and the clone is fitted again to
+   all the labels so far (the clone learns to recover from its own drift).
 2. The encoder (backbone + pooling) is frozen; PPO fine-tunes the head and trains the critic.
    Because the encoder is frozen, the PPO adapter encodes the images once per step and
    rsl-rl's rollout storage holds features, not images.
@@ -201,6 +204,37 @@ def check_image_obs(obs: dict, image_size: int) -> None:
 
 
 # -- behaviour cloning ---------------------------------------------------------------------------
+def _teacher_policy(venv, task: str, teacher: str | None, seed: int):
+    """The teacher's ``act(obs)`` on ``venv``'s observations and its ``reset``: a state-policy
+    run (memoryless) or, with ``teacher=None``, the task's scripted expert."""
+    if teacher is None:
+        from wirecraft.experts import expert_class
+
+        expert = expert_class(task)(venv, seed=seed)
+        return expert.act, expert.reset
+    from wirecraft.rl import load_policy
+
+    policy = load_policy(teacher, venv)
+    return (lambda obs: policy.act(obs["state"])), policy.reset
+
+
+def _observation_store() -> dict[str, list]:
+    return {k: [] for k in (*CAMERAS, "proprio", "actions")}
+
+
+def _keep(store: dict[str, list], obs: dict, labels: np.ndarray) -> None:
+    for key in (*CAMERAS, "proprio"):
+        store[key].append(np.asarray(obs[key]).copy())
+    store["actions"].append(np.asarray(labels, dtype=np.float32))
+
+
+def _as_tensors(store: dict[str, list], count: int | None = None) -> dict[str, torch.Tensor]:
+    data = {k: torch.as_tensor(np.concatenate(v)[:count]) for k, v in store.items()}
+    data["proprio"] = data["proprio"].float()
+    data["actions"] = data["actions"].float()
+    return data
+
+
 def collect_teacher_data(
     task: str,
     env_kwargs: dict,
@@ -216,43 +250,84 @@ def collect_teacher_data(
     from tqdm import tqdm
 
     import wirecraft
-    from wirecraft.experts import expert_class
 
     venv = wirecraft.make_vec(task, num_envs, threads=threads, **env_kwargs)
-    if teacher is None:
-        actor = expert_class(task)(venv, seed=seed)
-
-        def teach(obs):
-            return actor.act(obs)
-    else:
-        from wirecraft.rl import load_policy
-
-        actor = load_policy(teacher, venv)
-
-        def teach(obs):
-            return actor.act(obs["state"])
-
-    obs, _ = venv.reset(seed=seed)
-    actor.reset()
-    store = {k: [] for k in (*CAMERAS, "proprio", "actions")}
+    store = _observation_store()
     bar = tqdm(total=transitions, desc="teacher rollouts", unit="step", disable=not progress)
     count = 0
     try:
+        teach, reset = _teacher_policy(venv, task, teacher, seed)
+        obs, _ = venv.reset(seed=seed)
+        reset()
         while count < transitions:
             actions = teach(obs)
-            for key in (*CAMERAS, "proprio"):
-                store[key].append(np.asarray(obs[key]).copy())
-            store["actions"].append(np.asarray(actions, dtype=np.float32))
+            _keep(store, obs, actions)
             obs, *_ = venv.step(actions)
             count += num_envs
             bar.update(num_envs)
     finally:
         bar.close()
         venv.close()
-    data = {k: torch.as_tensor(np.concatenate(v)[:transitions]) for k, v in store.items()}
-    data["proprio"] = data["proprio"].float()
-    data["actions"] = data["actions"].float()
-    return data
+    return _as_tensors(store, transitions)
+
+
+def student_actions(encoder: VisualEncoder, actor, obs: dict) -> np.ndarray:
+    """The (encoder, actor head) pair's deterministic actions on numpy observations."""
+    from tensordict import TensorDict
+
+    features = encoder.encode_numpy(obs)
+    with torch.no_grad():
+        td = TensorDict({"features": features}, batch_size=[len(features)])
+        return np.clip(actor(td).numpy().astype(np.float64), -1.0, 1.0)
+
+
+def dagger_wave(
+    task: str,
+    env_kwargs: dict,
+    teacher: str,
+    student,
+    beta: float,
+    *,
+    num_envs: int,
+    seed: int,
+    threads: int,
+    progress: bool,
+) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
+    """One DAgger wave: one episode in each of ``num_envs`` environments; at every step the
+    teacher (a state-policy run, whose action depends on the state alone) labels the state,
+    and each environment executes the teacher's action with probability ``beta``, else
+    ``student(obs)``'s.  Returns the labelled observations and the wave's reach / insert rates
+    (environments that reached / inserted at some step of the wave)."""
+    from tqdm import tqdm
+
+    import wirecraft
+
+    venv = wirecraft.make_vec(task, num_envs, threads=threads, **env_kwargs)
+    rng = np.random.default_rng(seed)
+    store = _observation_store()
+    reach, insert = np.zeros(num_envs, bool), np.zeros(num_envs, bool)
+    try:
+        teach, reset = _teacher_policy(venv, task, teacher, seed)
+        obs, _ = venv.reset(seed=seed)
+        reset()
+        steps = int(venv.unwrapped.envs[0].max_steps)
+        for _ in tqdm(range(steps), desc=f"DAgger wave (beta {beta:g})", disable=not progress):
+            labels = teach(obs)
+            actions = np.array(labels, dtype=np.float64)
+            learner = rng.random(num_envs) >= beta
+            if learner.any():
+                actions[learner] = student(obs)[learner]
+            _keep(store, obs, labels)
+            obs, _, _, _, info = venv.step(actions)
+            reach |= np.asarray(info["reach_success"], bool)
+            insert |= np.asarray(info["insert_success"], bool)
+    finally:
+        venv.close()
+    return _as_tensors(store), {"reach": float(reach.mean()), "insert": float(insert.mean())}
+
+
+def concatenate(first: dict[str, torch.Tensor], second: dict[str, torch.Tensor]) -> dict:
+    return {k: torch.cat([first[k], second[k]]) for k in first}
 
 
 def behaviour_clone(

@@ -1,0 +1,113 @@
+"""Vision PPO's DAgger stage: the clone drives, a state-policy teacher labels every state."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import wirecraft
+from wirecraft.envs.vector import env_seed
+from wirecraft.rl import load_policy, train
+from wirecraft.rl.config import VisionPPOConfig
+from wirecraft.rl.training import RUN_FILE
+from wirecraft.rl.vision import CAMERAS, dagger_wave
+
+TEACHER = str(Path(__file__).parents[1] / "checkpoints" / "ppo_insertion_ethernet_seed1")
+ENV = {"connector": "ethernet", "episode_seconds": 0.1, "obs_mode": "state_rgb", "image_size": 24}
+
+
+def _wave(student, beta, seed=5, num_envs=2):
+    return dagger_wave(
+        "insertion",
+        ENV,
+        TEACHER,
+        student,
+        beta,
+        num_envs=num_envs,
+        seed=seed,
+        threads=1,
+        progress=False,
+    )
+
+
+def test_a_clone_driven_wave_holds_the_clone_states_with_the_teacher_labels():
+    """beta 0: every environment runs the clone's actions; each stored observation must be the
+    one an independent single environment reaches under those actions, labelled with the
+    teacher's action on its state."""
+    rng = np.random.default_rng(0)
+    drift = rng.uniform(-0.6, 0.6, size=7)
+
+    def student(obs):
+        return np.tile(drift, (len(obs["proprio"]), 1))
+
+    data, rates = _wave(student, beta=0.0)
+    teacher = load_policy(TEACHER)
+    num_envs = 2
+    steps = len(data["actions"]) // num_envs
+    assert steps == 6 and len(data["actions"]) == steps * num_envs
+    for i in range(num_envs):
+        env = wirecraft.make("insertion", **ENV)
+        obs, _ = env.reset(seed=env_seed(5, i))
+        for t in range(steps):
+            row = t * num_envs + i
+            for key in CAMERAS:
+                np.testing.assert_array_equal(data[key][row].numpy(), obs[key])
+            np.testing.assert_allclose(data["proprio"][row].numpy(), obs["proprio"], atol=1e-6)
+            label = teacher.act(obs["state"][None])[0]
+            np.testing.assert_allclose(data["actions"][row].numpy(), label, atol=1e-6)
+            obs, *_ = env.step(drift)
+        env.close()
+    assert set(rates) == {"reach", "insert"}
+
+
+def test_a_teacher_driven_wave_never_asks_the_clone():
+    def student(obs):
+        raise AssertionError("beta 1: the clone must not act")
+
+    data, _ = _wave(student, beta=1.0)
+    assert len(data["actions"]) == 12
+
+
+def test_dagger_waves_need_a_teacher_that_labels_any_state():
+    with pytest.raises(ValueError, match="teacher"):
+        VisionPPOConfig(bc_dagger_waves=2)
+    with pytest.raises(ValueError, match="bc_dagger_waves"):
+        VisionPPOConfig(bc_dagger_waves=-1, teacher=TEACHER)
+    with pytest.raises(ValueError, match="bc_dagger_envs"):
+        VisionPPOConfig(bc_dagger_waves=1, bc_dagger_envs=0, teacher=TEACHER)
+    assert VisionPPOConfig(bc_dagger_waves=2, teacher=TEACHER).bc_dagger_waves == 2
+
+
+@pytest.mark.slow
+def test_vision_ppo_records_its_dagger_waves(tmp_path):
+    run_dir = tmp_path / "vision"
+    settings = {
+        "num_envs": 2,
+        "num_steps_per_env": 4,
+        "actor_hidden_dims": (32,),
+        "critic_hidden_dims": (16,),
+        "num_mini_batches": 2,
+        "num_learning_epochs": 1,
+        "queries_per_camera": 2,
+        "token_dim": 8,
+        "attention_heads": 2,
+        "bc_transitions": 24,
+        "bc_epochs": 2,
+        "bc_batch_size": 12,
+        "teacher": TEACHER,
+        "bc_dagger_waves": 2,
+        "bc_dagger_envs": 3,
+        "threads": 1,
+    }
+    env_kwargs = {k: v for k, v in ENV.items() if k != "obs_mode"}
+    train("vision-ppo", "insertion", env_kwargs, run_dir, 8, overrides=settings, progress=False)
+    bc = json.loads((run_dir / RUN_FILE).read_text())["behaviour_cloning"]
+    assert [w["beta"] for w in bc["dagger_waves"]] == [0.5, 0.0]
+    # each wave adds one 6-step episode in each of its 3 environments
+    assert [w["transitions"] for w in bc["dagger_waves"]] == [24 + 18, 24 + 36]
+    assert bc["transitions"] == 60
+    assert len(bc["epoch_losses"]) == 3 * 2
+    assert all(np.isfinite(bc["epoch_losses"]))
