@@ -2,7 +2,7 @@
 variant, robot, wire, recipe), mean +/- std across its training seeds.
 
     python benchmarks/rl_table.py [--checkpoints checkpoints] [--evaluate --workers 1]
-        [--readme README.md]
+        [--readme README.md] [--curves docs/img/rl_curves.png]
 
 A folder's figures are the evaluations its record keeps (``shipped.evaluations``: the
 ``wirecraft eval --json`` documents given to ``python -m wirecraft.rl.export``, 4 x 16 public
@@ -11,7 +11,9 @@ seeds and the held-out list ``--seed 1000``).  ``--evaluate`` measures them agai
 record.  Across the folders of a cell (one per training seed): each folder's mean over its seed
 list, then the mean and population std over the folders (``aggregate_runs``, as ``wirecraft eval
 --policy A B C``).  ``--readme`` writes the table between ``<!-- rl-table -->`` and
-``<!-- /rl-table -->``.
+``<!-- /rl-table -->``.  ``--curves`` plots each cell's learning curves, one line per training
+seed, from the ``progress.csv`` each folder keeps (training episodes' success at the end of the
+episode against env steps; folders without it are named and left out).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from pathlib import Path
 from wirecraft.cli_args import number, write_block
 from wirecraft.evaluation.protocol import aggregate_runs, run_evaluation
 from wirecraft.rl import RUN_FILE
+from wirecraft.rl.common import PROGRESS_FILE, ProgressTable
 
 MARKERS = ("<!-- rl-table -->", "<!-- /rl-table -->")
 HELD_OUT_SEED = 1000
@@ -141,6 +144,51 @@ def table(grouped: dict) -> str:
     return "\n".join(lines)
 
 
+def plot_curves(grouped: dict, out: Path) -> list[Path]:
+    """One panel per cell with a curve: each folder's training success (insert flag, else the
+    task's success) at the end of its episodes against env steps; returns the folders that
+    have no ``progress.csv``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    missing = [
+        f for runs in grouped.values() for f, _, _ in runs if not (f / PROGRESS_FILE).is_file()
+    ]
+    panels = {
+        key: runs
+        for key, runs in grouped.items()
+        if any((f / PROGRESS_FILE).is_file() for f, _, _ in runs)
+    }
+    if not panels:
+        raise ValueError(f"no shipped folder has a {PROGRESS_FILE}: no curve to plot")
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.6), squeeze=False)
+    for ax, ((variant, robot, wire, how), runs) in zip(axes[0], panels.items(), strict=True):
+        for folder, record, _ in runs:
+            rows = ProgressTable(folder / PROGRESS_FILE).rows()
+            if not rows:
+                continue
+            key = "mean_insert_success" if "mean_insert_success" in rows[0] else "mean_success"
+            kept = [r for r in rows if r[key] == r[key]]  # periods that ended an episode
+            ax.plot(
+                [r["env_steps"] / 1e6 for r in kept],
+                [100 * r[key] for r in kept],
+                label=f"seed {record['config'].get('seed', 0)}",
+            )
+        ax.set_title(f"{variant}\n{robot}, {wire}; {how}", fontsize=8)
+        ax.set_xlabel("env steps (M)")
+        ax.set_ylim(-2, 102)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0][0].set_ylabel("training episodes succeeding (%)")
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return missing
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--checkpoints", type=Path, default=Path("checkpoints"))
@@ -151,13 +199,23 @@ def main(argv: list[str] | None = None) -> int:
         "--workers", type=number(1, 1024, integer=True), default=None, help="with --evaluate"
     )
     parser.add_argument("--readme", type=Path, help="write the table into this file's block")
+    parser.add_argument("--curves", type=Path, help="plot the cells' learning curves (PNG)")
     args = parser.parse_args(argv)
     if not args.evaluate and args.workers is not None:
         parser.error("--workers applies only with --evaluate")
     if not shipped_folders(args.checkpoints):
         parser.error(f"no shipped policy (*/{RUN_FILE}) under {args.checkpoints}")
-    text = table(cells(args.checkpoints, args.evaluate, args.workers or 1))
+    grouped = cells(args.checkpoints, args.evaluate, args.workers or 1)
+    text = table(grouped)
     print(text)
+    if args.curves:
+        try:
+            missing = plot_curves(grouped, args.curves)
+        except ValueError as err:
+            parser.error(str(err))
+        print(f"wrote the learning curves to {args.curves}")
+        for folder in missing:
+            print(f"no {PROGRESS_FILE} in {folder}: its curve is not drawn")
     if args.readme:
         try:
             write_block(args.readme, MARKERS, text)

@@ -689,6 +689,7 @@ def test_an_exported_policy_acts_as_its_run_and_cannot_be_resumed(tmp_path):
     assert shipped["evaluations"][0]["insert_success"]["mean"] == 0.5
     full = (run_dir / "checkpoints/model_1.pt").stat().st_size
     assert (out / "checkpoints/model_1.pt").stat().st_size < full / 3
+    assert (out / "progress.csv").read_text() == (run_dir / "progress.csv").read_text()
     venv = wirecraft.make_vec("insertion", 2, threads=1, **SHORT)
     obs, _ = venv.reset(seed=1)
     np.testing.assert_array_equal(

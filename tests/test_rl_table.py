@@ -55,3 +55,36 @@ def test_bad_input_is_a_clear_error(rl_table, tmp_path, capsys):
     with pytest.raises(SystemExit):
         rl_table.main(["--workers", "2"])
     assert "--workers applies only with --evaluate" in capsys.readouterr().err
+
+
+def test_curves_plot_each_folder_with_a_learning_curve(rl_table, tmp_path, capsys):
+    import matplotlib.image
+
+    from wirecraft.rl.common import PROGRESS_FILE, ProgressTable
+
+    root = tmp_path / "checkpoints"
+    shipped_copy(ROOT / "checkpoints" / "ppo_insertion_cylinder_seed0", root / "a", 0, 0.9)
+    shipped_copy(ROOT / "checkpoints" / "ppo_insertion_cylinder_seed0", root / "b", 1, 1.0)
+    (root / "a" / PROGRESS_FILE).unlink(missing_ok=True)
+    (root / "b" / PROGRESS_FILE).unlink(missing_ok=True)
+    png = tmp_path / "curves.png"
+    with pytest.raises(SystemExit):
+        rl_table.main(["--checkpoints", str(root), "--curves", str(png)])
+    assert "no shipped folder has a progress.csv" in capsys.readouterr().err
+    assert not png.exists()
+
+    table = ProgressTable(root / "b" / PROGRESS_FILE)
+    for iteration in range(3):
+        table.append(
+            {
+                "iteration": iteration,
+                "env_steps": 32768.0 * (iteration + 1),
+                "mean_insert_success": 0.3 * iteration,
+            }
+        )
+    assert rl_table.main(["--checkpoints", str(root), "--curves", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert f"no {PROGRESS_FILE} in {root / 'a'}" in out
+    assert f"no {PROGRESS_FILE} in {root / 'b'}" not in out
+    height, width, _ = matplotlib.image.imread(png).shape
+    assert width > 300 and height > 300

@@ -7,19 +7,27 @@ for the repository (``checkpoints/`` holds the reference cells; checkpoints/READ
 The folder is a run directory that ``wirecraft eval --policy`` and ``load_policy`` read as any
 other: ``wirecraft_rl.json`` (the run's record, with the shipped checkpoint as its only and
 latest one, and ``shipped``: where it came from, the training command and the evaluations'
-metrics) and ``checkpoints/model_<iteration>.pt`` holding the actor alone (about 250 KB against
-1.4 MB with the critic and the optimizer), so it cannot be resumed.
+metrics), ``checkpoints/model_<iteration>.pt`` holding the actor alone (about 250 KB against
+1.4 MB with the critic and the optimizer), so it cannot be resumed, and the run's
+``progress.csv`` (its learning curve; ``benchmarks/rl_table.py --curves`` plots it).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 from pathlib import Path
 
 from wirecraft.cli_args import folder_built_beside
-from wirecraft.rl.common import CHECKPOINT_DIR, RUN_FILE, checkpoint_path, read_run
+from wirecraft.rl.common import (
+    CHECKPOINT_DIR,
+    PROGRESS_FILE,
+    RUN_FILE,
+    checkpoint_path,
+    read_run,
+)
 
 SHIPPED_METRICS = ("success", "reach_success", "insert_success")
 
@@ -76,6 +84,8 @@ def export_policy(
         (staging / CHECKPOINT_DIR).mkdir(parents=True)
         torch.save(actor, staging / name)
         (staging / RUN_FILE).write_text(json.dumps(record, indent=2, sort_keys=True) + "\n")
+        if (run_dir / PROGRESS_FILE).is_file():
+            shutil.copyfile(run_dir / PROGRESS_FILE, staging / PROGRESS_FILE)
     return out
 
 
