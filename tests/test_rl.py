@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -532,25 +533,28 @@ def test_sacfd_trains_with_demonstrations_saves_loads_and_resumes(tmp_path):
     ]
 
 
+VISION_TINY = {
+    "num_envs": 2,
+    "num_steps_per_env": 4,
+    "actor_hidden_dims": (32,),
+    "critic_hidden_dims": (16,),
+    "num_mini_batches": 2,
+    "num_learning_epochs": 1,
+    "queries_per_camera": 2,
+    "token_dim": 8,
+    "attention_heads": 2,
+    "bc_transitions": 24,
+    "bc_epochs": 8,
+    "bc_batch_size": 12,
+    "bc_learning_rate": 3e-3,
+    "threads": 1,
+}
+
+
 @pytest.mark.slow
 def test_vision_ppo_clones_the_expert_then_fine_tunes(tmp_path):
     run_dir = tmp_path / "vision"
-    settings = {
-        "num_envs": 2,
-        "num_steps_per_env": 4,
-        "actor_hidden_dims": (32,),
-        "critic_hidden_dims": (16,),
-        "num_mini_batches": 2,
-        "num_learning_epochs": 1,
-        "queries_per_camera": 2,
-        "token_dim": 8,
-        "attention_heads": 2,
-        "bc_transitions": 24,
-        "bc_epochs": 8,
-        "bc_batch_size": 12,
-        "bc_learning_rate": 3e-3,
-        "threads": 1,
-    }
+    settings = VISION_TINY
     env_kwargs = {**SHORT, "image_size": 24}
     train("vision-ppo", "insertion", env_kwargs, run_dir, 8, overrides=settings, progress=False)
     run = json.loads((run_dir / RUN_FILE).read_text())
@@ -580,6 +584,30 @@ def test_vision_ppo_clones_the_expert_then_fine_tunes(tmp_path):
 
     train("vision-ppo", "insertion", None, run_dir, steps=16, resume=True, progress=False)
     assert json.loads((run_dir / RUN_FILE).read_text())["iterations_done"] == 2
+
+
+@pytest.mark.slow
+def test_vision_ppo_records_its_dagger_waves(tmp_path):
+    """Two DAgger waves of one 6-step episode in each of 3 environments after the teacher's 24
+    transitions: the record keeps each wave's share of teacher steps and the labels so far."""
+    teacher = str(Path(__file__).parents[1] / "checkpoints" / "ppo_insertion_ethernet_seed1")
+    run_dir = tmp_path / "vision"
+    settings = {
+        **VISION_TINY,
+        "bc_epochs": 2,
+        "teacher": teacher,
+        "bc_dagger_waves": 2,
+        "bc_dagger_envs": 3,
+    }
+    env_kwargs = {**SHORT, "connector": "ethernet", "image_size": 24}
+    train("vision-ppo", "insertion", env_kwargs, run_dir, 8, overrides=settings, progress=False)
+    bc = json.loads((run_dir / RUN_FILE).read_text())["behaviour_cloning"]
+    assert bc["teacher"] == teacher
+    assert [w["beta"] for w in bc["dagger_waves"]] == [0.5, 0.0]
+    assert [w["transitions"] for w in bc["dagger_waves"]] == [24 + 18, 24 + 36]
+    assert bc["transitions"] == 60
+    assert len(bc["epoch_losses"]) == 3 * 2
+    assert all(math.isfinite(v) for v in bc["epoch_losses"])
 
 
 def test_vision_encoder_pools_each_camera_into_its_queries():

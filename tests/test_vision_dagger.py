@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -10,9 +9,8 @@ import pytest
 
 import wirecraft
 from wirecraft.envs.vector import env_seed
-from wirecraft.rl import load_policy, train
+from wirecraft.rl import load_policy
 from wirecraft.rl.config import VisionPPOConfig
-from wirecraft.rl.training import RUN_FILE
 from wirecraft.rl.vision import CAMERAS, dagger_wave
 
 TEACHER = str(Path(__file__).parents[1] / "checkpoints" / "ppo_insertion_ethernet_seed1")
@@ -79,35 +77,3 @@ def test_dagger_waves_need_a_teacher_that_labels_any_state():
     with pytest.raises(ValueError, match="bc_dagger_envs"):
         VisionPPOConfig(bc_dagger_waves=1, bc_dagger_envs=0, teacher=TEACHER)
     assert VisionPPOConfig(bc_dagger_waves=2, teacher=TEACHER).bc_dagger_waves == 2
-
-
-@pytest.mark.slow
-def test_vision_ppo_records_its_dagger_waves(tmp_path):
-    run_dir = tmp_path / "vision"
-    settings = {
-        "num_envs": 2,
-        "num_steps_per_env": 4,
-        "actor_hidden_dims": (32,),
-        "critic_hidden_dims": (16,),
-        "num_mini_batches": 2,
-        "num_learning_epochs": 1,
-        "queries_per_camera": 2,
-        "token_dim": 8,
-        "attention_heads": 2,
-        "bc_transitions": 24,
-        "bc_epochs": 2,
-        "bc_batch_size": 12,
-        "teacher": TEACHER,
-        "bc_dagger_waves": 2,
-        "bc_dagger_envs": 3,
-        "threads": 1,
-    }
-    env_kwargs = {k: v for k, v in ENV.items() if k != "obs_mode"}
-    train("vision-ppo", "insertion", env_kwargs, run_dir, 8, overrides=settings, progress=False)
-    bc = json.loads((run_dir / RUN_FILE).read_text())["behaviour_cloning"]
-    assert [w["beta"] for w in bc["dagger_waves"]] == [0.5, 0.0]
-    # each wave adds one 6-step episode in each of its 3 environments
-    assert [w["transitions"] for w in bc["dagger_waves"]] == [24 + 18, 24 + 36]
-    assert bc["transitions"] == 60
-    assert len(bc["epoch_losses"]) == 3 * 2
-    assert all(np.isfinite(bc["epoch_losses"]))
