@@ -58,7 +58,7 @@ def test_a_clone_driven_wave_holds_the_clone_states_with_the_teacher_labels():
             np.testing.assert_allclose(data["actions"][row].numpy(), label, atol=1e-6)
             obs, *_ = env.step(drift)
         env.close()
-    assert set(rates) == {"reach", "insert"}
+    assert set(rates) == {"success", "reach", "insert"}
 
 
 def test_a_teacher_driven_wave_never_asks_the_clone():
@@ -77,3 +77,26 @@ def test_dagger_waves_need_a_teacher_that_labels_any_state():
     with pytest.raises(ValueError, match="bc_dagger_envs"):
         VisionPPOConfig(bc_dagger_waves=1, bc_dagger_envs=0, teacher=TEACHER)
     assert VisionPPOConfig(bc_dagger_waves=2, teacher=TEACHER).bc_dagger_waves == 2
+
+
+def test_a_wave_on_a_task_without_reach_and_insert_flags(tmp_path):
+    """Routing has only ``success``: the wave reports the flags the task raises."""
+    from wirecraft.rl import train
+
+    teacher = tmp_path / "routing_ppo"
+    tiny = {"num_envs": 2, "num_steps_per_env": 4, "actor_hidden_dims": (8,), "threads": 1}
+    train("ppo", "routing", {"episode_seconds": 0.1}, teacher, 8, overrides=tiny, progress=False)
+    env = {"episode_seconds": 0.1, "obs_mode": "state_rgb", "image_size": 24}
+    data, rates = dagger_wave(
+        "routing",
+        env,
+        str(teacher),
+        lambda obs: np.zeros((len(obs["proprio"]), 7)),
+        0.5,
+        num_envs=2,
+        seed=3,
+        threads=1,
+        progress=False,
+    )
+    assert set(rates) == {"success"} and 0.0 <= rates["success"] <= 1.0
+    assert len(data["actions"]) == 12

@@ -472,13 +472,14 @@ def _vision_encoder(cfg, run: Run, progress: bool):
     actor = ppo.build_actor(
         cfg, encoder.out_dim, data["action_dim"], groups=("features",), normalization=False
     )
+    bc_seed = cfg.seed + 104_729  # episodes of their own, apart from PPO's
     teacher_data = vision.collect_teacher_data(
         data["task"],
         data["env_kwargs"],
         cfg.teacher,
         cfg.bc_transitions,
         num_envs=cfg.num_envs,
-        seed=cfg.seed + 104_729,
+        seed=bc_seed,
         threads=cfg.threads,
         progress=progress,
     )
@@ -504,7 +505,7 @@ def _vision_encoder(cfg, run: Run, progress: bool):
                 lambda obs: vision.student_actions(encoder, actor, obs),
                 beta,
                 num_envs=cfg.bc_dagger_envs,
-                seed=cfg.seed + 104_729 + wave,
+                seed=bc_seed + wave,
                 threads=cfg.threads,
                 progress=progress,
             )

@@ -31,6 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from wirecraft.rl.common import EPISODE_FLAGS
 from wirecraft.rl.config import VisionPPOConfig
 
 CAMERAS = ("rgb_side", "rgb_wrist")
@@ -296,8 +297,10 @@ def dagger_wave(
     """One DAgger wave: one episode in each of ``num_envs`` environments; at every step the
     teacher (a state-policy run, whose action depends on the state alone) labels the state,
     and each environment executes the teacher's action with probability ``beta``, else
-    ``student(obs)``'s.  Returns the labelled observations and the wave's reach / insert rates
-    (environments that reached / inserted at some step of the wave)."""
+    ``student(obs)``'s.  Returns the labelled observations and, for each of the task's success
+    flags (``success``, ``reach_success``, ``insert_success``: those its ``info`` has), the
+    share of environments that raised it at some step of the wave, keyed ``success``,
+    ``reach``, ``insert``."""
     from tqdm import tqdm
 
     import wirecraft
@@ -305,7 +308,7 @@ def dagger_wave(
     venv = wirecraft.make_vec(task, num_envs, threads=threads, **env_kwargs)
     rng = np.random.default_rng(seed)
     store = _observation_store()
-    reach, insert = np.zeros(num_envs, bool), np.zeros(num_envs, bool)
+    raised: dict[str, np.ndarray] = {}
     try:
         teach, reset = _teacher_policy(venv, task, teacher, seed)
         obs, _ = venv.reset(seed=seed)
@@ -319,11 +322,14 @@ def dagger_wave(
                 actions[learner] = student(obs)[learner]
             _keep(store, obs, labels)
             obs, _, _, _, info = venv.step(actions)
-            reach |= np.asarray(info["reach_success"], bool)
-            insert |= np.asarray(info["insert_success"], bool)
+            for flag in EPISODE_FLAGS:
+                if flag in info:
+                    seen = raised.setdefault(flag, np.zeros(num_envs, bool))
+                    seen |= np.asarray(info[flag], bool)
     finally:
         venv.close()
-    return _as_tensors(store), {"reach": float(reach.mean()), "insert": float(insert.mean())}
+    rates = {flag.removesuffix("_success"): float(seen.mean()) for flag, seen in raised.items()}
+    return _as_tensors(store), rates
 
 
 def concatenate(first: dict[str, torch.Tensor], second: dict[str, torch.Tensor]) -> dict:
@@ -416,17 +422,11 @@ class VisionPolicy:
         del env_ids
 
     def act(self, obs) -> np.ndarray:
-        from tensordict import TensorDict
-
         obs = dict(obs)
         if np.ndim(obs[CAMERAS[0]]) == 3:  # one environment: add the batch axis
             obs = {k: np.asarray(obs[k])[None] for k in (*CAMERAS, "proprio")}
         check_image_obs(obs, self.encoder.image_size)
-        features = self.encoder.encode_numpy(obs)
-        with torch.no_grad():
-            td = TensorDict({"features": features}, batch_size=[len(features)])
-            actions = self.actor(td).numpy().astype(np.float64)
-        return np.clip(actions, -1.0, 1.0)
+        return student_actions(self.encoder, self.actor, obs)
 
 
 def load_vision_policy(run: dict, run_dir: Path, checkpoint: Path) -> VisionPolicy:
