@@ -146,27 +146,23 @@ def table(grouped: dict) -> str:
 
 def plot_curves(grouped: dict, out: Path) -> list[Path]:
     """One panel per cell with a curve: each folder's training success (insert flag, else the
-    task's success) at the end of its episodes against env steps; returns the folders that
-    have no ``progress.csv``."""
+    task's success) at the end of its episodes against env steps; returns the folders without a
+    curve (no ``progress.csv``, or one without rows)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    missing = [
-        f for runs in grouped.values() for f, _, _ in runs if not (f / PROGRESS_FILE).is_file()
-    ]
-    panels = {
-        key: runs
-        for key, runs in grouped.items()
-        if any((f / PROGRESS_FILE).is_file() for f, _, _ in runs)
+    curves = {
+        f: ProgressTable(f / PROGRESS_FILE).rows() for runs in grouped.values() for f, _, _ in runs
     }
+    panels = {key: runs for key, runs in grouped.items() if any(curves[f] for f, _, _ in runs)}
     if not panels:
         raise ValueError(f"no shipped folder has a {PROGRESS_FILE}: no curve to plot")
     fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.6), squeeze=False)
     for ax, ((variant, robot, wire, how), runs) in zip(axes[0], panels.items(), strict=True):
         for folder, record, _ in runs:
-            rows = ProgressTable(folder / PROGRESS_FILE).rows()
+            rows = curves[folder]
             if not rows:
                 continue
             key = "mean_insert_success" if "mean_insert_success" in rows[0] else "mean_success"
@@ -186,7 +182,7 @@ def plot_curves(grouped: dict, out: Path) -> list[Path]:
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)
-    return missing
+    return [folder for folder, rows in curves.items() if not rows]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -203,6 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.evaluate and args.workers is not None:
         parser.error("--workers applies only with --evaluate")
+    if args.curves and args.curves.suffix.lower() != ".png":
+        parser.error(f"--curves writes a PNG: give a .png file, got {args.curves}")
     if not shipped_folders(args.checkpoints):
         parser.error(f"no shipped policy (*/{RUN_FILE}) under {args.checkpoints}")
     grouped = cells(args.checkpoints, args.evaluate, args.workers or 1)
@@ -211,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.curves:
         try:
             missing = plot_curves(grouped, args.curves)
-        except ValueError as err:
+        except (ValueError, OSError) as err:
             parser.error(str(err))
         print(f"wrote the learning curves to {args.curves}")
         for folder in missing:

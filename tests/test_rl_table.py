@@ -55,6 +55,10 @@ def test_bad_input_is_a_clear_error(rl_table, tmp_path, capsys):
     with pytest.raises(SystemExit):
         rl_table.main(["--workers", "2"])
     assert "--workers applies only with --evaluate" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        rl_table.main(["--curves", str(tmp_path / "curves.txt")])
+    assert "--curves writes a PNG" in capsys.readouterr().err
+    assert not (tmp_path / "curves.txt").exists()
 
 
 def test_curves_plot_each_folder_with_a_learning_curve(rl_table, tmp_path, capsys):
