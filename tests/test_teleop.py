@@ -549,6 +549,46 @@ def test_keyboard_drives_the_robot_in_a_real_window(tmp_path, xvfb):
         assert per_frame.max() <= 0.01, (key, np.flatnonzero(per_frame), per_frame.max())
 
 
+VIEWER_PROBE = """
+import json, subprocess, time
+import mujoco
+from wirecraft.teleop.viewer import TeleopViewer
+
+xml = '<mujoco model="probe"><worldbody><light pos="0 0 1"/><geom size=".1"/></worldbody></mujoco>'
+model = mujoco.MjModel.from_xml_string(xml)
+data = mujoco.MjData(model)
+viewer = TeleopViewer(model, data)
+deadline = time.monotonic() + 120
+while not subprocess.run(["xdotool", "search", "--name", "MuJoCo : probe"],
+                         capture_output=True).stdout.strip():  # the viewer has loaded the model
+    assert time.monotonic() < deadline, "no viewer window"
+    time.sleep(0.2)
+model.opt.timestep = 0.0005
+model.vis.quality.offsamples = 0
+model.vis.map.zfar = 7.0
+model.stat.extent = 3.0
+for _ in range(2):
+    viewer.sync()
+    time.sleep(0.2)
+print(json.dumps([model.opt.timestep, model.vis.quality.offsamples, model.vis.map.zfar,
+                  model.stat.extent, viewer.restored]))
+viewer.close()
+"""
+
+
+@pytest.mark.slow
+def test_the_viewer_keeps_the_settings_written_after_it_opened(xvfb):
+    """MuJoCo's passive viewer writes mjModel.vis and .stat back, at its first sync, as they
+    were when it loaded the model; TeleopViewer puts back what the program set since."""
+    env = {**os.environ, "DISPLAY": xvfb, "MUJOCO_GL": "glfw"}
+    done = subprocess.run([sys.executable, "-c", VIEWER_PROBE], env=env, capture_output=True,
+                          text=True, timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    timestep, offsamples, zfar, extent, restored = json.loads(done.stdout.splitlines()[-1])
+    assert (timestep, offsamples, zfar, extent) == (0.0005, 0, 7.0, 3.0)
+    assert restored == 1  # the first sync only
+
+
 def test_the_wirecraft_program_runs_teleop(capsys):
     from wirecraft.cli import main
 

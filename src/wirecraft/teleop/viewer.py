@@ -3,11 +3,14 @@
 The viewer only shows the simulation: the command stream alone decides an episode, so that a
 replay reproduces it.  MuJoCo's viewer can change the simulation on its own, at ``sync``:
 Backspace resets ``mjData``, a mouse perturbation writes forces, the history slider and the
-control sliders write the state, the physics panel writes ``mjModel.opt``.  ``TeleopViewer``
+control sliders write the state, the physics panel writes ``mjModel.opt``, and its first
+``sync`` writes back ``mjModel.vis`` and ``mjModel.stat`` as they were when it loaded the model
+(undoing, for one, the off-screen sample count a renderer created later sets).  ``TeleopViewer``
 keeps the integration state (``mjSTATE_INTEGRATION``: time, positions, velocities, controls,
-applied forces, ...) and ``opt`` from before each ``sync`` and puts them back where the viewer
-changed them.  The viewer's letter shortcuts (every letter toggles a visual flag, e.g. W
-wireframe, S shadows) are undone for the letters the keyboard device uses.
+applied forces, ...) and the model's ``opt``, ``vis`` and ``stat`` from before each ``sync`` and
+puts them back where the viewer changed them.  The viewer's letter shortcuts (every letter
+toggles a visual flag, e.g. W wireframe, S shadows) are undone for the letters the keyboard
+device uses.
 
 The overlay (``handle.set_texts``): the key map (top left), the episode status (top right:
 saved episodes, scene, seed, time, speed, gripper, pause, the task's success flags) and the
@@ -16,12 +19,15 @@ last message (bottom left).
 
 from __future__ import annotations
 
+import copy
 import threading
 
 import mujoco
 import numpy as np
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
+# mjModel's settings the viewer writes at sync: physics options, visualisation, statistics.
+MODEL_SETTINGS = ("opt", "vis", "stat")
 CLOSE_TIMEOUT_S = 10.0
 # The viewer's first view: from behind the robot and to its right (it stands at x = -0.5 m
 # facing +x), over the wire's side of the table: forward (+x) points into the screen and
@@ -60,7 +66,6 @@ class TeleopViewer:
         self.model, self.data = model, data
         self._state = np.empty(mujoco.mj_stateSize(model, STATE_SPEC))
         self._after = np.empty_like(self._state)
-        self._opt = None
         self.restored = 0  # syncs after which the viewer's changes were undone
         before = set(threading.enumerate())
         self._handle = mujoco.viewer.launch_passive(
@@ -88,44 +93,25 @@ class TeleopViewer:
         """Show the current state; undo whatever the viewer changed in the simulation."""
         model, data = self.model, self.data
         mujoco.mj_getState(model, data, self._state, STATE_SPEC)
-        opt = self._copy_opt()
+        settings = {name: copy.copy(getattr(model, name)) for name in MODEL_SETTINGS}
         self._handle.sync()
         mujoco.mj_getState(model, data, self._after, STATE_SPEC)
-        changed = not np.array_equal(self._state, self._after)
-        if opt != model.opt:
-            self._restore_opt(opt)
-            changed = True
-        if changed:
+        state_changed = not np.array_equal(self._state, self._after)
+        changed = [name for name, saved in settings.items() if saved != getattr(model, name)]
+        for name in changed:
+            _assign(getattr(model, name), settings[name])
+            if settings[name] != getattr(model, name):
+                raise RuntimeError(f"TeleopViewer: could not restore mjModel.{name}")
+        if state_changed or "opt" in changed:
             mujoco.mj_setState(model, data, self._state, STATE_SPEC)
             mujoco.mj_forward(model, data)
-            self.restored += 1
+        self.restored += bool(state_changed or changed)
         if self._vis or self._rnd:
             with self._handle.lock():
                 for i, v in zip(self._vis, self._vis_values, strict=True):
                     self._handle.opt.flags[i] = v
                 for i, v in zip(self._rnd, self._rnd_values, strict=True):
                     self._handle.user_scn.flags[i] = v
-
-    def _copy_opt(self):
-        import copy
-
-        return copy.copy(self.model.opt)
-
-    def _restore_opt(self, opt) -> None:
-        current = self.model.opt
-        for name in dir(opt):
-            if name.startswith("_"):
-                continue
-            value = getattr(opt, name)
-            if callable(value):
-                continue
-            try:
-                if isinstance(value, np.ndarray):
-                    getattr(current, name)[...] = value
-                else:
-                    setattr(current, name, value)
-            except (AttributeError, TypeError):
-                pass
 
     def show(self, status: list[tuple[str, str]], message: str = "") -> None:
         """The overlay: the key map, ``status`` (label, value) rows and ``message``."""
@@ -148,3 +134,20 @@ class TeleopViewer:
         self._handle.close()
         for thread in self._threads:
             thread.join(timeout)
+
+
+def _assign(current, saved) -> None:
+    """Copy every field of the MuJoCo struct ``saved`` into ``current`` (same type), nested
+    structs (``mjVisual``'s sections) included."""
+    for name in dir(saved):
+        if name.startswith("_"):
+            continue
+        value = getattr(saved, name)
+        if callable(value):
+            continue
+        if isinstance(value, np.ndarray):
+            getattr(current, name)[...] = value
+        elif isinstance(value, (bool, int, float)):
+            setattr(current, name, value)
+        else:
+            _assign(getattr(current, name), value)
