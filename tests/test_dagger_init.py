@@ -92,7 +92,8 @@ def test_a_wave_without_the_expert_executes_the_actor_and_still_labels_every_sta
     tcp = wave["states"][:, :, expert.layout.tcp_pos]
     assert np.abs(tcp - tcp[0]).max() < 0.002  # the actor held still...
     assert np.abs(wave["labels"][:, :, :3]).max() > 0.5  # ...while the expert asked to move
-    assert wave["insert"] == 0.0
+    assert wave["rates"].keys() == {"success", "reach", "insert"}  # the task's own flags
+    assert wave["rates"]["insert"] == 0.0
 
 
 def test_dagger_warm_start_trains_the_actor_on_relative_inputs_and_loads_back(tmp_path):
@@ -154,7 +155,8 @@ def test_bad_warm_start_settings_are_refused_before_anything_is_written(tmp_path
     cases = [
         ("routing", {}, {"dagger_init_iterations": 1}, "insertion task"),
         ("insertion", {"control": "joint"}, {"dagger_init_iterations": 1}, "cartesian"),
-        ("seating", {}, {"actor_inputs": "relative"}, "reactive expert's task"),
+        ("seating", {}, {"actor_inputs": "relative"}, "insertion task's state layout"),
+        ("seating", {}, {"dagger_init_iterations": 1}, "seating task with control='cartesian'"),
     ]
     for task, env_kwargs, overrides, message in cases:
         with pytest.raises(ValueError, match=message):

@@ -1,5 +1,8 @@
 """Scripted experts: a vectorized finite-state-machine framework and one expert per task."""
 
+# The memoryless experts register themselves in ``reactive.REACTIVE_EXPERTS`` (insertion's is in
+# ``reactive`` itself).
+from wirecraft.experts import reactive_seating  # noqa: F401
 from wirecraft.experts.base import EXPERTS, ScriptedExpert
 from wirecraft.experts.fsm import Phase, VectorFSM
 from wirecraft.experts.insertion import InsertionExpert, InsertionExpertConfig

@@ -80,87 +80,72 @@ class StateLayout:
 REACTIVE_EXPERTS: Registry[type] = Registry("reactive expert")
 
 
-@REACTIVE_EXPERTS.register("insertion")
-class ReactiveInsertionExpert:
-    """``ReactiveInsertionExpert(env_or_envs, gain=None)``; ``act(states)`` maps (N,
-    state_dim) insertion states to (N, 7) ``cartesian`` actions (module docstring).  ``gain``
-    overrides the class's (in (0, 1]).  The scene constants come from the first environment:
-    the socket's orientation is fixed across episodes (only its position is randomized), the
-    plug's geometry by the connector."""
+class ReactivePlugExpert:
+    """What the reactive experts of the tasks whose robot picks up the plug share: the scene
+    constants of the gripper and the plug, ``act`` over a batch of states, and the grasp
+    funnel onto the plug's tail (``_grasp``).  A subclass sets ``TASK``, ``PHASES``,
+    ``layout_class`` (column slices of its task's state: ``opening``, ``opening_rate``,
+    ``tcp_pos``, ``tcp_quat``, ``pads``, ``plug_pos``, ``plug_quat``, ``size``), the grasp
+    geometry (``min_tcp_height``, ``grasp_back``, ``approach_pitch``) and ``_command``."""
 
+    TASK: str
+    PHASES: tuple[str, ...]
+    layout_class: type
     hover = 0.05  # m above the grasp pose where the approach ends
-    min_tcp_height = 0.013  # m: TCP above the table when grasping (pads clear it)
-    grasp_back = 0.007  # m behind the tail's middle
-    approach_pitch = 0.2  # rad the pads lean back toward the wire
     pre_open_margin = 0.02  # m: pads open to the tail width + this
     at_grasp = 0.004  # m: tolerance of the grasp pose across and in height (funnel ramps)
     grasp_rot_tol = 0.05  # rad
-    carry_height = 0.07  # m of TCP above the table before the plug is carried sideways
-    pre_insert = 0.02  # m: the tip this far before the mouth, aligned, before driving in
-    # Alignment tolerances of the drive-in: within half of them it drives in, at them it holds,
-    # beyond 1.5 of them it backs out.  Past the mouth they widen to the clearance + 1 mm and
-    # inside_rot (the socket guides the plug).
-    align_lateral = 0.0015  # m of the tip off the socket axis
-    align_rot = 0.02  # rad
-    inside_rot = 0.06  # rad
-    push = 0.001  # m: the insert goal puts the tip this far past the seated target
-    seated_axial = 0.001  # m
-    seated_lateral = 0.0005  # m beyond the clearance
-    retreat = 0.05  # m above the seated target after releasing
     gain = 0.5  # fraction of the TCP's error commanded per step
     descend_speed = 0.004  # m per step
-    align_speed = 0.006
-    insert_speed = 0.0015
-    retreat_speed = 0.004
     settle_rate = 0.005  # m/s of pad gap change under which closed pads count as settled
     CONTROL = "cartesian"
 
     def __init__(self, env_or_envs, gain: float | None = None) -> None:
+        name = type(self).__name__
         if gain is not None:
             if not 0.0 < gain <= 1.0:  # NaN fails too
-                raise ValueError(f"ReactiveInsertionExpert gain must be in (0, 1], got {gain}")
+                raise ValueError(f"{name} gain must be in (0, 1], got {gain}")
             self.gain = float(gain)
         envs = unwrap_envs(env_or_envs)
         env = envs[0]
-        if env.controller.name != "cartesian" or env.task.name != "insertion":
-            raise ValueError(
-                "ReactiveInsertionExpert needs the insertion task with control='cartesian'"
-            )
+        if env.controller.name != self.CONTROL or env.task.name != self.TASK:
+            raise ValueError(f"{name} needs the {self.TASK} task with control={self.CONTROL!r}")
         task, robot, controller = env.task, env.robot, env.controller
-        model, data = env.model, env.data
         base = controller.index.base_site
-        base_pos = data.site_xpos[base]
-        base_rot = data.site_xmat[base].reshape(3, 3)
-        self.up = base_rot[2].copy()  # world +z in the base frame
+        base_pos = env.data.site_xpos[base]
+        self.base_rot = env.data.site_xmat[base].reshape(3, 3).copy()
+        self.up = self.base_rot[2].copy()  # world +z in the base frame
         self.table = -float(base_pos[2])  # the table top (world z = 0) in the base frame
-        self.port_rot = matmul(base_rot.T, data.xmat[task.port_id].reshape(3, 3))
-        self.grasp_local = model.site_pos[task.assembly.grasp_site].copy()
+        self.grasp_local = env.model.site_pos[task.assembly.grasp_site].copy()
         connector = task.connector
         self.plug_length = float(connector.plug_length)
         self.tail_width = 2.0 * float(max(connector.tail_half[1:]))
-        self.clearance = float(connector.clearance)
-        self.symmetry = int(connector.symmetry)
         self.open_command = gripper_for_gap(  # pads open to the tail width + the margin
             self.tail_width + self.pre_open_margin, float(robot.max_opening)
         )
+        self.max_opening = float(robot.max_opening)
         self.translation_scale = controller.config.translation_scale
         self.rotation_scale = controller.config.rotation_scale
         self.home_rot = np.asarray(robot.home_tcp_rot, float)
-        self.layout = StateLayout(robot.dof)
+        self.layout = self.layout_class(robot.dof)
         self.phase = np.zeros(len(envs), int)
+        self._scene(env)
+
+    def _scene(self, env) -> None:
+        """The task's own scene constants (from the first environment)."""
 
     def phase_names(self) -> list[str]:
         """The rule that chose each environment's last action."""
-        return [PHASES[k] for k in self.phase]
+        return [self.PHASES[k] for k in self.phase]
 
     def act(self, states) -> np.ndarray:
         states = np.asarray(states, float)
         if states.ndim != 2 or states.shape[1] != self.layout.size:
             raise ValueError(
-                f"expected (N, {self.layout.size}) insertion states, got {states.shape}"
+                f"expected (N, {self.layout.size}) {self.TASK} states, got {states.shape}"
             )
         if not np.isfinite(states).all():
-            raise ValueError("non-finite insertion state (diverged simulation?)")
+            raise ValueError(f"non-finite {self.TASK} state (diverged simulation?)")
         actions = np.zeros((len(states), 7))
         self.phase = np.zeros(len(states), int)
         for i, state in enumerate(states):
@@ -168,7 +153,7 @@ class ReactiveInsertionExpert:
             actions[i, :3] = move / self.translation_scale
             actions[i, 3:6] = turn / self.rotation_scale
             actions[i, 6] = gripper
-            self.phase[i] = PHASES.index(phase)
+            self.phase[i] = self.PHASES.index(phase)
         return np.clip(actions, -1.0, 1.0)
 
     # -- geometry (shared with the scripted expert) ---------------------------------------------
@@ -188,26 +173,6 @@ class ReactiveInsertionExpert:
         )
 
     # -- the rules ------------------------------------------------------------------------------
-    def _command(self, state):
-        """(TCP move (m), TCP turn (rotation vector, rad), gripper command, phase) for one
-        state, in the base frame, per control step."""
-        lay, up = self.layout, self.up
-        tcp, tcp_rot = state[lay.tcp_pos], quat_to_mat(state[lay.tcp_quat])
-        opening = state[lay.opening]
-        held = bool(state[lay.pads].min() > 0.5)
-        home = state[lay.axial] < self.seated_axial and state[lay.lateral] < (
-            self.clearance + self.seated_lateral
-        )
-        if home or (not held and norm(state[lay.tip_to_target]) < 0.004):
-            if opening < self.tail_width + 0.5 * self.pre_open_margin:
-                return np.zeros(3), np.zeros(3), self.open_command, "release"
-            top = dot(state[lay.seated], up) + self.retreat
-            rise = min(self.retreat_speed, max(0.0, self.gain * (top - dot(tcp, up))))
-            return rise * up, np.zeros(3), self.open_command, "retreat"
-        if held:
-            return self._carry(state, tcp, tcp_rot)
-        return self._grasp(state, tcp, tcp_rot)
-
     def _grasp(self, state, tcp, tcp_rot):
         """Pads open, down a funnel onto the grasp pose: the goal sits ``hover`` above it while
         the TCP is more than 1.5 tolerances off (across or in rotation), on it within half a
@@ -236,6 +201,62 @@ class ReactiveInsertionExpert:
         else:
             phase = "approach" if lift > 0.5 else "descend"
         return move, turn, gripper, phase
+
+
+@REACTIVE_EXPERTS.register("insertion")
+class ReactiveInsertionExpert(ReactivePlugExpert):
+    """``ReactiveInsertionExpert(env_or_envs, gain=None)``; ``act(states)`` maps (N,
+    state_dim) insertion states to (N, 7) ``cartesian`` actions (module docstring).  ``gain``
+    overrides the class's (in (0, 1]).  The scene constants come from the first environment:
+    the socket's orientation is fixed across episodes (only its position is randomized), the
+    plug's geometry by the connector."""
+
+    TASK = "insertion"
+    PHASES = PHASES
+    layout_class = StateLayout
+    min_tcp_height = 0.013  # m: TCP above the table when grasping (pads clear it)
+    grasp_back = 0.007  # m behind the tail's middle
+    approach_pitch = 0.2  # rad the pads lean back toward the wire
+    carry_height = 0.07  # m of TCP above the table before the plug is carried sideways
+    pre_insert = 0.02  # m: the tip this far before the mouth, aligned, before driving in
+    # Alignment tolerances of the drive-in: within half of them it drives in, at them it holds,
+    # beyond 1.5 of them it backs out.  Past the mouth they widen to the clearance + 1 mm and
+    # inside_rot (the socket guides the plug).
+    align_lateral = 0.0015  # m of the tip off the socket axis
+    align_rot = 0.02  # rad
+    inside_rot = 0.06  # rad
+    push = 0.001  # m: the insert goal puts the tip this far past the seated target
+    seated_axial = 0.001  # m
+    seated_lateral = 0.0005  # m beyond the clearance
+    retreat = 0.05  # m above the seated target after releasing
+    align_speed = 0.006
+    insert_speed = 0.0015
+    retreat_speed = 0.004
+
+    def _scene(self, env) -> None:
+        self.port_rot = matmul(self.base_rot.T, env.data.xmat[env.task.port_id].reshape(3, 3))
+        self.clearance = float(env.task.connector.clearance)
+        self.symmetry = int(env.task.connector.symmetry)
+
+    def _command(self, state):
+        """(TCP move (m), TCP turn (rotation vector, rad), gripper command, phase) for one
+        state, in the base frame, per control step."""
+        lay, up = self.layout, self.up
+        tcp, tcp_rot = state[lay.tcp_pos], quat_to_mat(state[lay.tcp_quat])
+        opening = state[lay.opening]
+        held = bool(state[lay.pads].min() > 0.5)
+        home = state[lay.axial] < self.seated_axial and state[lay.lateral] < (
+            self.clearance + self.seated_lateral
+        )
+        if home or (not held and norm(state[lay.tip_to_target]) < 0.004):
+            if opening < self.tail_width + 0.5 * self.pre_open_margin:
+                return np.zeros(3), np.zeros(3), self.open_command, "release"
+            top = dot(state[lay.seated], up) + self.retreat
+            rise = min(self.retreat_speed, max(0.0, self.gain * (top - dot(tcp, up))))
+            return rise * up, np.zeros(3), self.open_command, "retreat"
+        if held:
+            return self._carry(state, tcp, tcp_rot)
+        return self._grasp(state, tcp, tcp_rot)
 
     def _carry(self, state, tcp, tcp_rot):
         """The plug in the pads: turn it onto the socket's rotation, bring its tip onto the

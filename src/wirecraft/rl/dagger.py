@@ -1,11 +1,11 @@
-"""A DAgger warm start of state PPO from the reactive insertion expert (``--set
-dagger_init_iterations=K``).
+"""A DAgger warm start of state PPO from a task's reactive expert (``--set
+dagger_init_iterations=K``; ``experts.reactive.REACTIVE_EXPERTS``).
 
 Behaviour cloning of an expert's own episodes fails closed loop: the clone drifts into states the
 expert never visited (docs/baselines.md).  DAgger (Ross et al., 2011) labels the learner's own
 states instead.  Before PPO's first iteration, wave ``k`` (k = 0 ... K-1) runs one episode in
 every training environment, each step executing the expert's action with probability 0.5 ** k,
-else the actor's mean; ``ReactiveInsertionExpert``, whose action is a function of the state
+else the actor's mean; the task's reactive expert, whose action is a function of the state
 alone, labels every state; the actor is then fitted to all labels so far (warm start).  A last
 wave runs the actor alone (its success rates are the warm start's own figures), is labelled too,
 and the final fit also fits the critic to the discounted returns of all the waves, so that PPO's
@@ -28,6 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from wirecraft.experts.reactive import REACTIVE_EXPERTS
+from wirecraft.rl.common import EPISODE_FLAGS
 
 
 def check_dagger_task(task: str, control: str) -> None:
@@ -70,11 +71,12 @@ def actor_means(actor, obs_groups: Callable, obs: np.ndarray) -> np.ndarray:
 def run_wave(venv, expert, actor, obs_groups, beta: float, seed: int, rng) -> dict:
     """One episode in every environment of ``venv``: the expert's action with probability
     ``beta``, else the actor's; returns the states, labels, (T, N) rewards and dones, and the
-    wave's reach / insert rates (at some step)."""
+    wave's rate of each success flag the task raises (at some step; ``success``, and for
+    insertion ``reach`` and ``insert``)."""
     obs, _ = venv.reset(seed=seed)
     n, steps = venv.num_envs, int(venv.unwrapped.envs[0].max_steps)
     states, labels, rewards, dones = [], [], [], []
-    reach, insert = np.zeros(n, bool), np.zeros(n, bool)
+    raised: dict[str, np.ndarray] = {}
     for _ in range(steps):
         label = expert.act(obs)
         action = label.copy()
@@ -86,15 +88,18 @@ def run_wave(venv, expert, actor, obs_groups, beta: float, seed: int, rng) -> di
         obs, reward, terminated, truncated, info = venv.step(action)
         rewards.append(np.asarray(reward, float))
         dones.append(np.asarray(terminated | truncated, float))
-        reach |= np.asarray(info["reach_success"], bool)
-        insert |= np.asarray(info["insert_success"], bool)
+        for flag in EPISODE_FLAGS:
+            if flag in info:
+                seen = raised.setdefault(flag, np.zeros(n, bool))
+                seen |= np.asarray(info[flag], bool)
     return {
         "states": np.stack(states),
         "labels": np.stack(labels),
         "rewards": np.stack(rewards),
         "dones": np.stack(dones),
-        "reach": float(reach.mean()),
-        "insert": float(insert.mean()),
+        "rates": {
+            flag.removesuffix("_success"): float(seen.mean()) for flag, seen in raised.items()
+        },
     }
 
 
@@ -111,8 +116,8 @@ def dagger_init(
     progress: bool = True,
 ) -> list[dict]:
     """Warm-start ``runner``'s actor (and, at the end, its critic) by DAgger on ``venv`` (module
-    docstring); returns one record per wave: beta, the wave's reach / insert rates, the labels
-    so far and the fit's last actor loss."""
+    docstring); returns one record per wave: beta, the wave's success rates (``run_wave``), the
+    labels so far and the fit's last actor loss."""
     import torch
 
     from wirecraft.rl.ppo import behaviour_clone_init
@@ -150,8 +155,7 @@ def dagger_init(
         record = {
             "wave": k,
             "beta": beta,
-            "reach": wave["reach"],
-            "insert": wave["insert"],
+            **wave["rates"],
             "labels": len(demos["actions"]),
             "actor_loss": losses["actor"],
         }

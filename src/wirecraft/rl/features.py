@@ -45,6 +45,8 @@ def relative_features(states) -> np.ndarray:
 
 
 ACTOR_INPUTS = {"state": None, "relative": relative_features}
+# The task family whose state layout each computed input set reads.
+ACTOR_INPUT_TASKS = {"relative": "insertion"}
 
 
 def actor_input_dim(name: str, state_dim: int) -> int:

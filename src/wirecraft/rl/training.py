@@ -140,12 +140,13 @@ def _check_expert_control(algorithm: str, task: str, env_kwargs: dict, cfg) -> N
         from wirecraft.rl.dagger import check_dagger_task
 
         check_dagger_task(task, control)
-    from wirecraft.experts.reactive import REACTIVE_EXPERTS
+    from wirecraft.rl.features import ACTOR_INPUT_TASKS
 
-    if algorithm == "ppo" and cfg.actor_inputs != "state" and task not in REACTIVE_EXPERTS:
+    reads = ACTOR_INPUT_TASKS.get(cfg.actor_inputs)
+    if algorithm == "ppo" and reads is not None and task != reads:
         raise ValueError(
-            f"actor_inputs={cfg.actor_inputs!r} is computed from the state layout of a reactive "
-            f"expert's task ({', '.join(REACTIVE_EXPERTS)}), not {task}"
+            f"actor_inputs={cfg.actor_inputs!r} is computed from the {reads} task's state "
+            f"layout, not {task}'s"
         )
 
 
