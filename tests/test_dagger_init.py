@@ -155,7 +155,7 @@ def test_bad_warm_start_settings_are_refused_before_anything_is_written(tmp_path
     cases = [
         ("routing", {}, {"dagger_init_iterations": 1}, "insertion task"),
         ("insertion", {"control": "joint"}, {"dagger_init_iterations": 1}, "cartesian"),
-        ("seating", {}, {"actor_inputs": "relative"}, "insertion task's state layout"),
+        ("routing", {}, {"actor_inputs": "relative"}, "not routing's"),
         ("seating", {}, {"dagger_init_iterations": 1}, "seating task with control='cartesian'"),
     ]
     for task, env_kwargs, overrides, message in cases:

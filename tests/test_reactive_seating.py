@@ -112,8 +112,52 @@ def test_reactive_seating_expert_refuses_bad_input():
     insertion.close()
 
 
-def test_dagger_warm_start_runs_on_seating(tmp_path):
-    from wirecraft.rl import RUN_FILE, train
+@pytest.mark.parametrize("channel", ["straight", "curved"])
+def test_seating_relative_features_are_the_plug_seen_from_the_tcp_and_the_goal(channel):
+    from wirecraft.geometry import quat_to_mat
+    from wirecraft.rl.features import FINE_SCALES, LAY_BACK, seating_relative_features
+    from wirecraft.tasks.seating.task import PLUG_LEAD
+
+    env = wirecraft.make("seating", channel=channel, control="cartesian")
+    obs, _ = env.reset(seed=3)
+    u = env.unwrapped
+    features = seating_relative_features(obs[None])[0]
+    assert features.shape == (len(obs) + 33,)
+    np.testing.assert_array_equal(features[: len(obs)], obs)
+    extra = features[len(obs) :]
+    # From the simulation itself: the TCP and plug poses, the channel's centre line.
+    tcp, tcp_rot = u.robot.tcp_pose_base(u.model, u.data)
+    base = u.data.site_xpos[u.controller.index.base_site]
+    base_rot = u.data.site_xmat[u.controller.index.base_site].reshape(3, 3)
+    plug = base_rot.T @ (u.data.xpos[u.task.assembly.plug_id] - base)
+    plug_rot = base_rot.T @ u.data.xmat[u.task.assembly.plug_id].reshape(3, 3)
+    np.testing.assert_allclose(extra[:3], tcp_rot.T @ (plug - tcp), atol=1e-6)
+    # (the quaternion's sign does not change the rotation)
+    np.testing.assert_allclose(extra[3:12].reshape(3, 3), tcp_rot.T @ plug_rot, atol=1e-6)
+    np.testing.assert_allclose(extra[12:15], plug - tcp, atol=1e-6)
+    placed = u.task.placed
+    line = placed.config.centerline(samples_per_segment=2)
+    c, s = np.cos(placed.yaw), np.sin(placed.yaw)
+    world = np.column_stack(
+        [c * line[:, 0] - s * line[:, 1], s * line[:, 0] + c * line[:, 1], line[:, 2]]
+    ) + np.asarray(placed.pos)
+    heading = (world[-1] - world[-2]) / np.linalg.norm(world[-1] - world[-2])
+    end = base_rot.T @ (world[-1] + PLUG_LEAD * heading - base)
+    lay_start = end - LAY_BACK * (base_rot.T @ heading)
+    near = np.concatenate([tcp_rot.T @ (plug - tcp), plug - end, plug - lay_start])
+    np.testing.assert_allclose(extra[15:24], np.tanh(near / FINE_SCALES[0]), atol=1e-5)
+    np.testing.assert_allclose(extra[24:33], np.tanh(near / FINE_SCALES[1]), atol=1e-5)
+    assert np.allclose(quat_to_mat(obs[ReactiveSeatingExpert.layout_class(6).plug_quat]), plug_rot)
+    env.close()
+    with pytest.raises(ValueError, match="seating state width"):
+        seating_relative_features(obs[None, :81])
+
+
+def test_dagger_warm_start_runs_on_seating_with_relative_inputs_and_loads_back(tmp_path):
+    import torch
+
+    from wirecraft.rl import RUN_FILE, load_policy, train
+    from wirecraft.rl.features import seating_relative_features
 
     overrides = {
         "num_envs": 2,
@@ -123,6 +167,7 @@ def test_dagger_warm_start_runs_on_seating(tmp_path):
         "num_mini_batches": 2,
         "num_learning_epochs": 1,
         "threads": 1,
+        "actor_inputs": "relative",
         "dagger_init_iterations": 1,
         "dagger_init_epochs": 2,
     }
@@ -134,3 +179,19 @@ def test_dagger_warm_start_runs_on_seating(tmp_path):
     # seating raises one success flag; 2 s of 60 Hz control steps per wave in 2 environments
     assert first.keys() >= {"success"} and "insert" not in first
     assert (first["labels"], alone["labels"]) == (240, 480)
+
+    # the loaded policy computes the seating features itself: its action is the saved actor's
+    venv = make_venv(2)
+    obs, _ = venv.reset(seed=4)
+    policy = load_policy(tmp_path, venv)
+    venv.close()
+    saved = torch.load(tmp_path / run["latest_checkpoint"], weights_only=False)
+    state = saved["actor_state_dict"]
+    mean, std = state["obs_normalizer._mean"].double().numpy(), state["obs_normalizer._std"]
+    x = (seating_relative_features(obs) - mean) / (std.double().numpy() + 1e-2)
+    for i in (0, 2):
+        w, b = state[f"mlp.{i}.weight"].double().numpy(), state[f"mlp.{i}.bias"].double().numpy()
+        x = x @ w.T + b
+        x = np.where(x > 0, x, np.expm1(np.minimum(x, 0)))
+    w, b = state["mlp.4.weight"].double().numpy(), state["mlp.4.bias"].double().numpy()
+    np.testing.assert_allclose(policy.act(obs), np.clip(x @ w.T + b, -1, 1), atol=1e-5)

@@ -50,15 +50,15 @@ def state_observations(obs) -> dict:
     return {"policy": obs}
 
 
-def observation_groups(actor_inputs: str = "state") -> Callable:
-    """The observation groups of state PPO whose actor sees ``actor_inputs`` (rl/features.py):
-    ``policy``, the state (the critic's, and the actor's for "state"), and ``actor``, the
-    actor's inputs computed from it otherwise."""
-    from wirecraft.rl.features import ACTOR_INPUTS
+def observation_groups(actor_inputs: str = "state", task: str | None = None) -> Callable:
+    """The observation groups of state PPO on ``task`` whose actor sees ``actor_inputs``
+    (rl/features.py): ``policy``, the state (the critic's, and the actor's for "state"), and
+    ``actor``, the actor's inputs computed from it otherwise."""
+    from wirecraft.rl.features import actor_transform
 
-    if actor_inputs == "state":
+    transform = actor_transform(actor_inputs, task)
+    if transform is None:
         return state_observations
-    transform = ACTOR_INPUTS[actor_inputs]
 
     def groups(obs) -> dict:
         state = obs.numpy() if hasattr(obs, "numpy") else np.asarray(obs)
@@ -423,13 +423,19 @@ class StatePolicy:
     """A trained state PPO actor: deterministic (mean) actions from numpy state observations."""
 
     def __init__(
-        self, actor, control: str, obs_dim: int, action_dim: int, actor_inputs: str = "state"
+        self,
+        actor,
+        control: str,
+        obs_dim: int,
+        action_dim: int,
+        actor_inputs: str = "state",
+        task: str | None = None,
     ) -> None:
         self.actor = actor.eval()
         self.control = control
         self.obs_dim = obs_dim
         self.action_dim = action_dim
-        self.groups = observation_groups(actor_inputs)
+        self.groups = observation_groups(actor_inputs, task)
 
     def reset(self, env_ids=None) -> None:
         del env_ids  # a feed-forward policy has no memory
@@ -473,4 +479,4 @@ def load_state_policy(run: dict, checkpoint: Path) -> StatePolicy:
     )
     saved = torch.load(checkpoint, map_location="cpu", weights_only=False)
     actor.load_state_dict(saved["actor_state_dict"])
-    return StatePolicy(actor, run["control"], obs_dim, action_dim, inputs)
+    return StatePolicy(actor, run["control"], obs_dim, action_dim, inputs, run["task"])

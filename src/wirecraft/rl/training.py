@@ -140,14 +140,10 @@ def _check_expert_control(algorithm: str, task: str, env_kwargs: dict, cfg) -> N
         from wirecraft.rl.dagger import check_dagger_task
 
         check_dagger_task(task, control)
-    from wirecraft.rl.features import ACTOR_INPUT_TASKS
+    if algorithm == "ppo":
+        from wirecraft.rl.features import actor_transform
 
-    reads = ACTOR_INPUT_TASKS.get(cfg.actor_inputs)
-    if algorithm == "ppo" and reads is not None and task != reads:
-        raise ValueError(
-            f"actor_inputs={cfg.actor_inputs!r} is computed from the {reads} task's state "
-            f"layout, not {task}'s"
-        )
+        actor_transform(cfg.actor_inputs, task)  # a ValueError for a task without them
 
 
 def physics_backend(cfg) -> dict:
@@ -315,7 +311,7 @@ def _train_ppo_family(cfg, run: Run, steps: int | None, progress: bool) -> None:
     iterations_done = int(data.get("iterations_done", 0))
     torch.manual_seed(cfg.seed + iterations_done)
     vision = data["algorithm"] == "vision-ppo"
-    obs_groups, bc_actor = ppo.observation_groups(cfg.actor_inputs), None
+    obs_groups, bc_actor = ppo.observation_groups(cfg.actor_inputs, task), None
     train_cfg = ppo.runner_config(cfg, actor_groups=ppo.actor_groups(cfg.actor_inputs))
     if vision:
         encoder, bc_actor = _vision_encoder(cfg, run, progress)
