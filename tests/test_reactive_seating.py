@@ -195,3 +195,24 @@ def test_dagger_warm_start_runs_on_seating_with_relative_inputs_and_loads_back(t
         x = np.where(x > 0, x, np.expm1(np.minimum(x, 0)))
     w, b = state["mlp.4.weight"].double().numpy(), state["mlp.4.bias"].double().numpy()
     np.testing.assert_allclose(policy.act(obs), np.clip(x @ w.T + b, -1, 1), atol=1e-5)
+
+
+def test_wirecraft_eval_runs_the_reactive_expert():
+    from wirecraft.evaluation.policies import load_policy, policy_env_kwargs
+    from wirecraft.evaluation.protocol import run_evaluation
+
+    assert policy_env_kwargs("reactive", "seating")["control"] == "cartesian"
+    with pytest.raises(ValueError, match="reactive expert 'routing'"):
+        policy_env_kwargs("reactive", "routing")
+    venv = make_venv(2)
+    obs, _ = venv.reset(seed=5)
+    policy = load_policy("reactive", venv)
+    np.testing.assert_array_equal(policy.act(obs), ReactiveSeatingExpert(venv).act(obs))
+    venv.close()
+    # the protocol's own runner, 4 episodes of 4 s (the wire is laid in 2-3.5 s): a rate with a
+    # margin
+    run = run_evaluation(
+        "seating", "reactive", seeds=1, episodes=4, episode_seconds=4.0, progress=False,
+        channel="straight",
+    )  # fmt: skip
+    assert sum(r.summary["success"] for r in run.results) >= 3

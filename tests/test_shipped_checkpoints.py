@@ -23,19 +23,21 @@ def test_checkpoints_are_shipped():
 
 
 @pytest.mark.parametrize("folder", SHIPPED, ids=[p.name for p in SHIPPED])
-def test_a_shipped_policy_inserts_as_recorded(folder):
+def test_a_shipped_policy_succeeds_as_recorded(folder):
     from wirecraft.evaluation.protocol import run_evaluation
 
     record = json.loads((folder / RUN_FILE).read_text())
     shipped = record["shipped"]
     assert shipped["train_command"].startswith("wirecraft train ppo")
     public = [e for e in shipped["evaluations"] if e["held_out_seed"] is None]
-    assert public and public[0]["insert_success"]["mean"] >= 0.9
+    # the task's headline flag: insertion's insert_success, the others' success
+    flag = "insert_success" if "insert_success" in public[0] else "success"
+    assert public and public[0][flag]["mean"] >= 0.9
     size = (folder / record["latest_checkpoint"]).stat().st_size
     assert size < 400_000  # the actor alone
     env_kwargs = {k: v for k, v in record["env_kwargs"].items() if k != "obs_mode"}
     run = run_evaluation(
         record["task"], str(folder), seeds=1, episodes=4, progress=False, **env_kwargs
     )
-    inserted = [r.summary["insert_success"] for r in run.results]
-    assert sum(inserted) >= 3, inserted
+    succeeded = [r.summary[flag] for r in run.results]
+    assert sum(succeeded) >= 3, succeeded

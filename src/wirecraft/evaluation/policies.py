@@ -31,7 +31,7 @@ from wirecraft.experts.fsm import unwrap_envs
 from wirecraft.lerobot_compat import quiet_torchcodec
 
 quiet_torchcodec()  # lerobot's torchcodec traceback where FFmpeg is missing
-BUILTIN_POLICIES = ("scripted", "random", "zero")
+BUILTIN_POLICIES = ("scripted", "reactive", "random", "zero")
 RL_MARKER = "wirecraft_rl.json"
 # What an RL policy fixes about its environments (its observation and action spaces).
 # LeRobot camera feature -> our observation key (the dataset schema's camera names).
@@ -94,6 +94,27 @@ class ScriptedPolicy:
 
     def phase_names(self) -> list[str]:
         return list(self.expert.phase_names)
+
+
+class ReactivePolicy:
+    """The task family's memoryless expert (``wirecraft.experts.reactive.REACTIVE_EXPERTS``):
+    its action is a function of the state observation alone, so ``reset`` has nothing to do."""
+
+    def __init__(self, env) -> None:
+        from wirecraft.experts.reactive import REACTIVE_EXPERTS
+
+        cls = REACTIVE_EXPERTS.get(unwrap_envs(env)[0].task.name)
+        self.control = cls.CONTROL
+        self.expert = cls(env)
+
+    def reset(self, env_ids=None) -> None:
+        del env_ids
+
+    def act(self, obs) -> np.ndarray:
+        return self.expert.act(np.atleast_2d(obs))
+
+    def phase_names(self) -> list[str]:
+        return self.expert.phase_names()
 
 
 class ZeroPolicy:
@@ -421,6 +442,10 @@ def policy_env_kwargs(spec, task: str) -> dict[str, Any]:
         from wirecraft.experts import expert_class
 
         return {"control": expert_class(task).CONTROL}
+    if spec == "reactive":
+        from wirecraft.experts.reactive import REACTIVE_EXPERTS
+
+        return {"control": REACTIVE_EXPERTS.get(task).CONTROL, "obs_mode": "state"}
     if spec in ("random", "zero"):
         return {}
     path = Path(spec)
@@ -455,8 +480,9 @@ def _rl_env_kwargs(folder: Path) -> dict[str, Any]:
 def load_policy(spec, env, **kw) -> Policy:
     """The policy ``spec`` driving ``env`` (a vector environment or a single environment).
 
-    ``scripted``: the task's expert; ``random``; ``zero``; or a path: an RL run (a directory
-    containing, or a file inside a directory containing, ``wirecraft_rl.json``: loaded by
+    ``scripted``: the task's expert; ``reactive``: its memoryless expert; ``random``;
+    ``zero``; or a path: an RL run (a directory containing, or a file inside a directory
+    containing, ``wirecraft_rl.json``: loaded by
     ``wirecraft.rl.load_policy(path, env)``) or a LeRobot pretrained-policy directory.
     Extra keywords go to the loader (``device`` and ``fps`` for LeRobot).  ``spec`` may also be a
     factory called as ``spec(env, **kw)`` (a module-level class, so that worker processes
@@ -466,6 +492,8 @@ def load_policy(spec, env, **kw) -> Policy:
     spec = str(spec)
     if spec == "scripted":
         return ScriptedPolicy(env)
+    if spec == "reactive":
+        return ReactivePolicy(env)
     if spec == "random":
         return RandomPolicy(env)
     if spec == "zero":
@@ -510,6 +538,7 @@ __all__ = [
     "LeRobotPolicy",
     "Policy",
     "RandomPolicy",
+    "ReactivePolicy",
     "ScriptedPolicy",
     "ZeroPolicy",
     "checkpoint_fps",
