@@ -25,6 +25,7 @@ from pathlib import Path
 
 from wirecraft.cli_args import number, write_block
 from wirecraft.evaluation.protocol import aggregate_runs, run_evaluation
+from wirecraft.evaluation.seeds import variant_key
 from wirecraft.rl import RUN_FILE
 from wirecraft.rl.common import PROGRESS_FILE, ProgressTable
 
@@ -33,12 +34,12 @@ HELD_OUT_SEED = 1000
 # The reference's state-PPO figures (SR insert, or SR success where a task has no insert flag),
 # by evaluation variant.
 REFERENCE = {
-    "insertion/clearance=0.003/connector=cylinder": 0.938,
-    "insertion/clearance=0.003/connector=cuboid": 0.950,
-    "insertion/clearance=0.003/connector=ethernet": 0.959,
-    "insertion/clearance=0.003/connector=displayport": 0.929,
-    "routing/num_clips=1": 0.953,
-    "seating/channel=straight": 0.823,
+    variant_key("insertion", {"connector": "cylinder"}): 0.938,
+    variant_key("insertion", {"connector": "cuboid"}): 0.950,
+    variant_key("insertion", {"connector": "ethernet"}): 0.959,
+    variant_key("insertion", {"connector": "displayport"}): 0.929,
+    variant_key("routing", {"num_clips": 1}): 0.953,
+    variant_key("seating", {"channel": "straight"}): 0.823,
 }
 
 
