@@ -52,3 +52,23 @@ def quick_dataset(tmp_path_factory) -> Path:
     proc = subprocess.run(command, cwd=work, env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, f"collect exited {proc.returncode}:\n{proc.stderr[-4000:]}"
     return root
+
+
+@pytest.fixture
+def saved_actor_means():
+    """``(actor_state_dict, inputs) -> actions``: a saved rsl-rl MLP actor (empirical
+    normalisation, two ELU hidden layers) evaluated in float64 numpy from its weights alone,
+    the mean action clipped to [-1, 1]; an independent check of a loaded policy."""
+    import numpy as np
+
+    def forward(state, inputs):
+        mean, std = state["obs_normalizer._mean"].double().numpy(), state["obs_normalizer._std"]
+        x = (inputs - mean) / (std.double().numpy() + 1e-2)
+        for i in (0, 2):
+            w = state[f"mlp.{i}.weight"].double().numpy()
+            x = x @ w.T + state[f"mlp.{i}.bias"].double().numpy()
+            x = np.where(x > 0, x, np.expm1(np.minimum(x, 0)))
+        w, b = state["mlp.4.weight"].double().numpy(), state["mlp.4.bias"].double().numpy()
+        return np.clip(x @ w.T + b, -1, 1)
+
+    return forward

@@ -96,7 +96,9 @@ def test_a_wave_without_the_expert_executes_the_actor_and_still_labels_every_sta
     assert wave["rates"]["insert"] == 0.0
 
 
-def test_dagger_warm_start_trains_the_actor_on_relative_inputs_and_loads_back(tmp_path):
+def test_dagger_warm_start_trains_the_actor_on_relative_inputs_and_loads_back(
+    tmp_path, saved_actor_means
+):
     import torch
 
     run_dir = tmp_path / "ppo"
@@ -128,14 +130,9 @@ def test_dagger_warm_start_trains_the_actor_on_relative_inputs_and_loads_back(tm
     venv.close()
     saved = torch.load(run_dir / run["latest_checkpoint"], weights_only=False)
     state = saved["actor_state_dict"]
-    mean, std = state["obs_normalizer._mean"].double().numpy(), state["obs_normalizer._std"]
-    x = (relative_features(obs) - mean) / (std.double().numpy() + 1e-2)
-    for i in (0, 2):
-        w, b = state[f"mlp.{i}.weight"].double().numpy(), state[f"mlp.{i}.bias"].double().numpy()
-        x = x @ w.T + b
-        x = np.where(x > 0, x, np.expm1(np.minimum(x, 0)))
-    w, b = state["mlp.4.weight"].double().numpy(), state["mlp.4.bias"].double().numpy()
-    np.testing.assert_allclose(policy.act(obs), np.clip(x @ w.T + b, -1, 1), atol=1e-5)
+    np.testing.assert_allclose(
+        policy.act(obs), saved_actor_means(state, relative_features(obs)), atol=1e-5
+    )
 
 
 def test_bad_warm_start_settings_are_refused_before_anything_is_written(tmp_path):

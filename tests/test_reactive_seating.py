@@ -153,7 +153,9 @@ def test_seating_relative_features_are_the_plug_seen_from_the_tcp_and_the_goal(c
         seating_relative_features(obs[None, :81])
 
 
-def test_dagger_warm_start_runs_on_seating_with_relative_inputs_and_loads_back(tmp_path):
+def test_dagger_warm_start_runs_on_seating_with_relative_inputs_and_loads_back(
+    tmp_path, saved_actor_means
+):
     import torch
 
     from wirecraft.rl import RUN_FILE, load_policy, train
@@ -187,14 +189,9 @@ def test_dagger_warm_start_runs_on_seating_with_relative_inputs_and_loads_back(t
     venv.close()
     saved = torch.load(tmp_path / run["latest_checkpoint"], weights_only=False)
     state = saved["actor_state_dict"]
-    mean, std = state["obs_normalizer._mean"].double().numpy(), state["obs_normalizer._std"]
-    x = (seating_relative_features(obs) - mean) / (std.double().numpy() + 1e-2)
-    for i in (0, 2):
-        w, b = state[f"mlp.{i}.weight"].double().numpy(), state[f"mlp.{i}.bias"].double().numpy()
-        x = x @ w.T + b
-        x = np.where(x > 0, x, np.expm1(np.minimum(x, 0)))
-    w, b = state["mlp.4.weight"].double().numpy(), state["mlp.4.bias"].double().numpy()
-    np.testing.assert_allclose(policy.act(obs), np.clip(x @ w.T + b, -1, 1), atol=1e-5)
+    np.testing.assert_allclose(
+        policy.act(obs), saved_actor_means(state, seating_relative_features(obs)), atol=1e-5
+    )
 
 
 def test_wirecraft_eval_runs_the_reactive_expert():

@@ -56,8 +56,11 @@ PHASES = (
 )
 
 
-class StateLayout:
-    """Column slices of the insertion state for an arm of ``dof`` joints (docs/tasks.md)."""
+class RobotStateLayout:
+    """Column slices every task's state starts with, for an arm of ``dof`` joints
+    (docs/tasks.md): proprioception (gripper opening at ``dof``, its rate at 2 dof + 1), the
+    TCP's position and quaternion, the pads' contact flags; the task's own columns start at
+    ``task_start``."""
 
     def __init__(self, dof: int) -> None:
         self.opening = dof
@@ -66,14 +69,23 @@ class StateLayout:
         self.tcp_pos = slice(start, start + 3)
         self.tcp_quat = slice(start + 3, start + 7)
         self.pads = slice(start + 7, start + 9)
-        self.tip_to_target = slice(start + 9, start + 12)
-        self.plug_pos = slice(start + 12, start + 15)
-        self.plug_quat = slice(start + 15, start + 19)
-        self.entry = slice(start + 19, start + 22)
-        self.seated = slice(start + 22, start + 25)
-        self.axial = start + 26
-        self.lateral = start + 27
-        self.size = start + 28
+        self.task_start = start + 9
+
+
+class StateLayout(RobotStateLayout):
+    """Column slices of the insertion state for an arm of ``dof`` joints (docs/tasks.md)."""
+
+    def __init__(self, dof: int) -> None:
+        super().__init__(dof)
+        start = self.task_start
+        self.tip_to_target = slice(start, start + 3)
+        self.plug_pos = slice(start + 3, start + 6)
+        self.plug_quat = slice(start + 6, start + 10)
+        self.entry = slice(start + 10, start + 13)
+        self.seated = slice(start + 13, start + 16)
+        self.axial = start + 17
+        self.lateral = start + 18
+        self.size = start + 19
 
 
 # Task family -> its memoryless expert (a function of the state: DAgger's labeller).

@@ -31,7 +31,12 @@ import math
 import numpy as np
 
 from wirecraft.experts.insertion import gripper_for_gap
-from wirecraft.experts.reactive import REACTIVE_EXPERTS, ReactivePlugExpert, _capped
+from wirecraft.experts.reactive import (
+    REACTIVE_EXPERTS,
+    ReactivePlugExpert,
+    RobotStateLayout,
+    _capped,
+)
 from wirecraft.geometry import quat_to_mat
 from wirecraft.numerics import cross, dot, norm
 
@@ -50,23 +55,19 @@ PHASES = (
 )
 
 
-class SeatingStateLayout:
+class SeatingStateLayout(RobotStateLayout):
     """Column slices of the seating state for an arm of ``dof`` joints (docs/tasks.md)."""
 
     def __init__(self, dof: int) -> None:
-        self.opening = dof
-        self.opening_rate = 2 * dof + 1
-        start = 2 * dof + 2
-        self.tcp_pos = slice(start, start + 3)
-        self.tcp_quat = slice(start + 3, start + 7)
-        self.pads = slice(start + 7, start + 9)
-        self.plug_pos = slice(start + 9, start + 12)
-        self.plug_quat = slice(start + 12, start + 16)
-        self.clamp = slice(start + 16, start + 19)
-        self.wire = slice(start + 19, start + 49)
-        self.joints = slice(start + 49, start + 67)
-        self.fraction = start + 67
-        self.size = start + 68
+        super().__init__(dof)
+        start = self.task_start
+        self.plug_pos = slice(start, start + 3)
+        self.plug_quat = slice(start + 3, start + 7)
+        self.clamp = slice(start + 7, start + 10)
+        self.wire = slice(start + 10, start + 40)
+        self.joints = slice(start + 40, start + 58)
+        self.fraction = start + 58
+        self.size = start + 59
 
 
 @REACTIVE_EXPERTS.register("seating")
