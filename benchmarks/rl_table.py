@@ -102,6 +102,13 @@ def cells(root: Path, evaluate: bool, workers: int) -> dict:
     return grouped
 
 
+def headline_metric(evaluations: dict) -> str:
+    """The flag a cell is judged by: ``insert_success`` where the task raises it (insertion),
+    else ``success``."""
+    first = evaluations["public"] or evaluations["held_out"]
+    return "insert_success" if "insert_success" in first else "success"
+
+
 def across(runs: list, split: str, metric: str) -> str:
     payloads = [
         {"metrics": {metric: e[split][metric]}}
@@ -128,8 +135,7 @@ def table(grouped: dict) -> str:
         "|---|---|---|---:|---:|---:|---:|---:|---|",
     ]
     for (variant, robot, wire, how), runs in grouped.items():
-        first = runs[0][2]["public"] or runs[0][2]["held_out"]
-        metric = "insert_success" if "insert_success" in first else "success"
+        metric = headline_metric(runs[0][2])
         seeds = ", ".join(str(r["config"].get("seed", 0)) for _, r, _ in runs)
         steps = sorted({r["env_steps"] for _, r, _ in runs})
         minutes = [r["wall_time_s"] / 60 for _, r, _ in runs]
@@ -146,8 +152,8 @@ def table(grouped: dict) -> str:
 
 
 def plot_curves(grouped: dict, out: Path) -> list[Path]:
-    """One panel per cell with a curve: each folder's training success (insert flag, else the
-    task's success) at the end of its episodes against env steps; returns the folders without a
+    """One panel per cell with a curve: each folder's training success (the cell's
+    ``headline_metric``) at the end of its episodes against env steps; returns the folders without a
     curve (no ``progress.csv``, or one without rows)."""
     import matplotlib
 
@@ -162,11 +168,12 @@ def plot_curves(grouped: dict, out: Path) -> list[Path]:
         raise ValueError(f"no shipped folder has a {PROGRESS_FILE}: no curve to plot")
     fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.6), squeeze=False)
     for ax, ((variant, robot, wire, how), runs) in zip(axes[0], panels.items(), strict=True):
-        for folder, record, _ in runs:
+        for folder, record, evaluations in runs:
             rows = curves[folder]
             if not rows:
                 continue
-            key = "mean_insert_success" if "mean_insert_success" in rows[0] else "mean_success"
+            # every task's progress.csv has every flag's column: the cell's own flag decides
+            key = f"mean_{headline_metric(evaluations)}"
             kept = [r for r in rows if r[key] == r[key]]  # periods that ended an episode
             ax.plot(
                 [r["env_steps"] / 1e6 for r in kept],

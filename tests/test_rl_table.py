@@ -92,3 +92,23 @@ def test_curves_plot_each_folder_with_a_learning_curve(rl_table, tmp_path, capsy
     assert f"no {PROGRESS_FILE} in {root / 'b'}" not in out
     height, width, _ = matplotlib.image.imread(png).shape
     assert width > 300 and height > 300
+
+
+def test_a_seating_cell_is_judged_and_drawn_by_its_success_flag(rl_table, tmp_path, monkeypatch):
+    """Every task's progress.csv has a column per flag (seating's insert column is all zero):
+    the table and the curve read the cell's own flag."""
+    import matplotlib.axes
+
+    root = tmp_path / "checkpoints"
+    shutil.copytree(ROOT / "checkpoints" / "ppo_seating_straight_seed0", root / "s")
+    grouped = rl_table.cells(root, evaluate=False, workers=1)
+    ((_, runs),) = grouped.items()
+    assert rl_table.headline_metric(runs[0][2]) == "success"
+    drawn = []
+    plot = matplotlib.axes.Axes.plot
+    monkeypatch.setattr(
+        matplotlib.axes.Axes, "plot", lambda ax, x, y, **kw: drawn.append(y) or plot(ax, x, y, **kw)
+    )
+    assert rl_table.plot_curves(grouped, tmp_path / "curves.png") == []
+    (curve,) = drawn
+    assert min(curve) > 50  # the training episodes' success (%), not the zero insert column
