@@ -25,7 +25,7 @@ or is carrying while the pads hold nothing, starts over.
 ``--expert reactive`` labels with ``wirecraft.experts.reactive.ReactiveInsertionExpert``
 instead, whose action is a function of the state alone (nothing to refresh; ``--expert-gain``
 sets its gain).  ``--features relative`` gives the learner goal-relative inputs computed from
-the state as well (``relative_features``).
+the state as well (``ReactiveInsertionExpert.relative_features``).
 
 Prints one JSON line per iteration (``collect``: the mixed wave's reach / insert rate at some
 step and mean steps with both pads on the plug; ``eval``: the learner's alone; ``fit_mse``) and
@@ -48,14 +48,17 @@ from tqdm import tqdm
 import wirecraft
 from wirecraft.experts.insertion import InsertionExpert, InsertionExpertConfig
 from wirecraft.experts.reactive import ReactiveInsertionExpert, StateLayout
-from wirecraft.rl.features import actor_input_dim, relative_features
+from wirecraft.rl.features import actor_input_dim
 
 EXPERT_SEED, COLLECT_SEED, EVAL_SEED = 7, 1000, 999
 STATE = StateLayout(6)  # the UR5's 42-d insertion state: its columns
 NEAR_SOCKET = 0.04  # m: labels with the tip this close to home get --near-weight
 CARRYING = ("pre_insert", "insert", "back_out")
 FINISHED = ("release", "withdraw", "retreat", "done")
-FEATURES = {"state": lambda states: states, "relative": relative_features}  # learner inputs
+FEATURES = {
+    "state": lambda states: states,
+    "relative": ReactiveInsertionExpert.relative_features,
+}  # learner inputs
 
 
 class Learner:

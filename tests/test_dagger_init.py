@@ -11,10 +11,13 @@ import numpy as np
 import pytest
 
 import wirecraft
+from wirecraft.experts.reactive import FINE_SCALES, ReactiveInsertionExpert
 from wirecraft.rl import RUN_FILE, load_policy, train
 from wirecraft.rl.config import PPOConfig, VisionPPOConfig
 from wirecraft.rl.dagger import discounted_returns, run_wave
-from wirecraft.rl.features import FINE_SCALES, actor_input_dim, relative_features
+from wirecraft.rl.features import actor_input_dim, actor_transform
+
+relative_features = ReactiveInsertionExpert.relative_features
 
 
 def _world(env):
@@ -59,8 +62,27 @@ def test_relative_features_are_the_plug_and_tip_seen_from_the_tcp(robot):
 
 
 def test_relative_features_refuse_a_state_that_is_not_an_insertion_state():
-    with pytest.raises(ValueError, match="insertion state width"):
+    with pytest.raises(ValueError, match="width of the insertion task"):
         relative_features(np.zeros((2, 43)))
+
+
+def test_a_family_gets_relative_inputs_from_its_memoryless_experts_hook():
+    from wirecraft.experts.reactive import REACTIVE_EXPERTS, ReactivePlugExpert
+
+    assert actor_transform("relative", "insertion") is relative_features
+    assert actor_transform("state", "insertion") is None
+
+    @REACTIVE_EXPERTS.register("toy_family")
+    class ToyExpert(ReactivePlugExpert):
+        TASK = "toy_family"
+
+    try:  # an expert without the hook: no relative inputs, and the error names who has them
+        with pytest.raises(ValueError, match="insertion and seating tasks' states, not toy_family"):
+            actor_transform("relative", "toy_family")
+        ToyExpert.relative_features = staticmethod(lambda states: states)
+        assert actor_transform("relative", "toy_family") is ToyExpert.relative_features
+    finally:
+        REACTIVE_EXPERTS.unregister("toy_family")
 
 
 def test_discounted_returns_restart_where_an_episode_ends():

@@ -114,14 +114,14 @@ def test_reactive_seating_expert_refuses_bad_input():
 
 @pytest.mark.parametrize("channel", ["straight", "curved"])
 def test_seating_relative_features_are_the_plug_seen_from_the_tcp_and_the_goal(channel):
+    from wirecraft.experts.reactive import FINE_SCALES
     from wirecraft.geometry import quat_to_mat
-    from wirecraft.rl.features import FINE_SCALES, LAY_BACK, seating_relative_features
     from wirecraft.tasks.seating.task import PLUG_LEAD
 
     env = wirecraft.make("seating", channel=channel, control="cartesian")
     obs, _ = env.reset(seed=3)
     u = env.unwrapped
-    features = seating_relative_features(obs[None])[0]
+    features = ReactiveSeatingExpert.relative_features(obs[None])[0]
     assert features.shape == (len(obs) + 33,)
     np.testing.assert_array_equal(features[: len(obs)], obs)
     extra = features[len(obs) :]
@@ -143,14 +143,14 @@ def test_seating_relative_features_are_the_plug_seen_from_the_tcp_and_the_goal(c
     ) + np.asarray(placed.pos)
     heading = (world[-1] - world[-2]) / np.linalg.norm(world[-1] - world[-2])
     end = base_rot.T @ (world[-1] + PLUG_LEAD * heading - base)
-    lay_start = end - LAY_BACK * (base_rot.T @ heading)
+    lay_start = end - ReactiveSeatingExpert.lay_back * (base_rot.T @ heading)
     near = np.concatenate([tcp_rot.T @ (plug - tcp), plug - end, plug - lay_start])
     np.testing.assert_allclose(extra[15:24], np.tanh(near / FINE_SCALES[0]), atol=1e-5)
     np.testing.assert_allclose(extra[24:33], np.tanh(near / FINE_SCALES[1]), atol=1e-5)
     assert np.allclose(quat_to_mat(obs[ReactiveSeatingExpert.layout_class(6).plug_quat]), plug_rot)
     env.close()
-    with pytest.raises(ValueError, match="seating state width"):
-        seating_relative_features(obs[None, :81])
+    with pytest.raises(ValueError, match="width of the seating task"):
+        ReactiveSeatingExpert.relative_features(obs[None, :81])
 
 
 def test_dagger_warm_start_runs_on_seating_with_relative_inputs_and_loads_back(
@@ -159,7 +159,6 @@ def test_dagger_warm_start_runs_on_seating_with_relative_inputs_and_loads_back(
     import torch
 
     from wirecraft.rl import RUN_FILE, load_policy, train
-    from wirecraft.rl.features import seating_relative_features
 
     overrides = {
         "num_envs": 2,
@@ -190,7 +189,9 @@ def test_dagger_warm_start_runs_on_seating_with_relative_inputs_and_loads_back(
     saved = torch.load(tmp_path / run["latest_checkpoint"], weights_only=False)
     state = saved["actor_state_dict"]
     np.testing.assert_allclose(
-        policy.act(obs), saved_actor_means(state, seating_relative_features(obs)), atol=1e-5
+        policy.act(obs),
+        saved_actor_means(state, ReactiveSeatingExpert.relative_features(obs)),
+        atol=1e-5,
     )
 
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from wirecraft.experts.fsm import unwrap_envs
 from wirecraft.experts.insertion import grasp_pose, gripper_for_gap, plug_goal_rot
-from wirecraft.geometry import quat_to_mat, rotation_error
+from wirecraft.geometry import quat_to_mat, quats_to_mats, rotation_error
 from wirecraft.numerics import cross, dot, matmul, norm
 from wirecraft.registry import Registry
 
@@ -71,6 +71,15 @@ class RobotStateLayout:
         self.pads = slice(start + 7, start + 9)
         self.task_start = start + 9
 
+    @classmethod
+    def for_width(cls, width: int, task: str):
+        """The layout of ``task``'s states ``width`` columns wide (a ValueError for a width
+        no arm gives); a subclass's ``size`` is 2 dof + a constant."""
+        dof, odd = divmod(width - (cls(1).size - 2), 2)
+        if odd or dof < 1:
+            raise ValueError(f"not the width of the {task} task's state: {width}")
+        return cls(dof)
+
 
 class StateLayout(RobotStateLayout):
     """Column slices of the insertion state for an arm of ``dof`` joints (docs/tasks.md)."""
@@ -91,6 +100,29 @@ class StateLayout(RobotStateLayout):
 # Task family -> its memoryless expert (a function of the state: DAgger's labeller).
 REACTIVE_EXPERTS: Registry[type] = Registry("reactive expert")
 
+# Goal-relative actor inputs (each expert's ``relative_features``, wirecraft.rl.features): the
+# millimetres that decide the expert's action, squashed at these scales, because standardised
+# over the whole workspace, as the raw state is for a network, they are a thousandth of the
+# inputs' spread (docs/baselines.md, "Goal-relative inputs").
+FINE_SCALES = (0.01, 0.002)  # m
+RELATIVE_WIDTH = 33  # columns each family's ``relative_features`` adds to its state
+
+
+def plug_in_tcp_frame(states, lay) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) the plug's position and (N, 9) its rotation matrix in the TCP frame, from states
+    with ``lay``'s ``tcp_pos``, ``tcp_quat``, ``plug_pos`` and ``plug_quat`` columns."""
+    tcp_rot = quats_to_mats(states[:, lay.tcp_quat])
+    plug_rot = quats_to_mats(states[:, lay.plug_quat])
+    offset = states[:, lay.plug_pos] - states[:, lay.tcp_pos]
+    position = np.einsum("nji,nj->ni", tcp_rot, offset)
+    rotation = np.einsum("nji,njk->nik", tcp_rot, plug_rot).reshape(len(states), 9)
+    return position, rotation
+
+
+def squashed(near) -> list[np.ndarray]:
+    """``near`` (N, k) metres as tanh(near / scale) at each of ``FINE_SCALES``."""
+    return [np.tanh(near / scale) for scale in FINE_SCALES]
+
 
 class ReactivePlugExpert:
     """What the reactive experts of the tasks whose robot picks up the plug share: the scene
@@ -98,11 +130,14 @@ class ReactivePlugExpert:
     funnel onto the plug's tail (``_grasp``).  A subclass sets ``TASK``, ``PHASES``,
     ``layout_class`` (column slices of its task's state: ``opening``, ``opening_rate``,
     ``tcp_pos``, ``tcp_quat``, ``pads``, ``plug_pos``, ``plug_quat``, ``size``), the grasp
-    geometry (``min_tcp_height``, ``grasp_back``, ``approach_pitch``) and ``_command``."""
+    geometry (``min_tcp_height``, ``grasp_back``, ``approach_pitch``) and ``_command``, and
+    may set ``relative_features`` (a static method: (N, width) states to (N, width +
+    ``RELATIVE_WIDTH``), the states and goal-relative inputs for a learner's actor)."""
 
     TASK: str
     PHASES: tuple[str, ...]
     layout_class: type
+    relative_features = None
     hover = 0.05  # m above the grasp pose where the approach ends
     pre_open_margin = 0.02  # m: pads open to the tail width + this
     at_grasp = 0.004  # m: tolerance of the grasp pose across and in height (funnel ramps)
@@ -320,6 +355,23 @@ class ReactiveInsertionExpert(ReactivePlugExpert):
         else:
             phase = "pre_insert"
         return _capped(move, self.translation_scale), turn, 1.0, phase
+
+    @staticmethod
+    def relative_features(states) -> np.ndarray:
+        """(N, width + 33): the insertion states, the plug's position and rotation in the TCP
+        frame, the tip from the TCP, and the vectors whose millimetres decide the action (plug
+        from the TCP, tip from the socket's mouth, tip from the seated target) ``squashed``."""
+        states = np.asarray(states, dtype=float)
+        lay = StateLayout.for_width(states.shape[-1], "insertion")
+        plug_in_tcp, plug_rot_in_tcp = plug_in_tcp_frame(states, lay)
+        tip = states[:, lay.seated] - states[:, lay.tip_to_target]
+        near = np.concatenate(
+            [plug_in_tcp, tip - states[:, lay.entry], states[:, lay.tip_to_target]], axis=1
+        )
+        tip_from_tcp = tip - states[:, lay.tcp_pos]
+        return np.concatenate(
+            [states, plug_in_tcp, plug_rot_in_tcp, tip_from_tcp, *squashed(near)], axis=1
+        )
 
 
 def _capped(vector, limit: float) -> np.ndarray:

@@ -36,6 +36,8 @@ from wirecraft.experts.reactive import (
     ReactivePlugExpert,
     RobotStateLayout,
     _capped,
+    plug_in_tcp_frame,
+    squashed,
 )
 from wirecraft.geometry import quat_to_mat
 from wirecraft.numerics import cross, dot, norm
@@ -94,6 +96,30 @@ class ReactiveSeatingExpert(ReactivePlugExpert):
     release_open = 0.08  # m: pad gap when releasing (capped at the robot's)
     retreat = 0.05  # m: TCP above the table after releasing
     retreat_speed = 0.004  # m per step
+    lay_back = 0.04  # m: the relative features' second reference, before the wire end's goal
+
+    @staticmethod
+    def relative_features(states) -> np.ndarray:
+        """(N, width + 33): the seating states, the plug's position and rotation in the TCP
+        frame, the plug from the TCP, and ``squashed``: the plug from the TCP, from its goal
+        (the channel's end extended by the task's plug lead) and from ``lay_back`` before it
+        along the last segment."""
+        from wirecraft.tasks.seating.task import PLUG_LEAD
+
+        states = np.asarray(states, dtype=float)
+        lay = SeatingStateLayout.for_width(states.shape[-1], "seating")
+        plug = states[:, lay.plug_pos]
+        plug_in_tcp, plug_rot_in_tcp = plug_in_tcp_frame(states, lay)
+        joints = states[:, lay.joints].reshape(len(states), -1, 3)
+        heading = joints[:, -1] - joints[:, -2]
+        heading /= np.sqrt((heading**2).sum(axis=1, keepdims=True))
+        goal = joints[:, -1] + PLUG_LEAD * heading
+        lay_start = goal - ReactiveSeatingExpert.lay_back * heading
+        near = np.concatenate([plug_in_tcp, plug - goal, plug - lay_start], axis=1)
+        plug_from_tcp = plug - states[:, lay.tcp_pos]
+        return np.concatenate(
+            [states, plug_in_tcp, plug_rot_in_tcp, plug_from_tcp, *squashed(near)], axis=1
+        )
 
     def _scene(self, env) -> None:
         task = env.task
