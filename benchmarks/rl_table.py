@@ -3,6 +3,7 @@ variant, robot, wire, recipe), mean +/- std across its training seeds.
 
     python benchmarks/rl_table.py [--checkpoints checkpoints] [--evaluate --workers 1]
         [--readme README.md] [--curves docs/img/rl_curves.png]
+        [--sweep OPTION [--sweep-with EVAL.json ...] [--sweep-plot PNG] [--sweep-doc FILE]]
 
 A folder's figures are the evaluations its record keeps (``shipped.evaluations``: the
 ``wirecraft eval --json`` documents given to ``python -m wirecraft.rl.export``, 4 x 16 public
@@ -14,6 +15,13 @@ list, then the mean and population std over the folders (``aggregate_runs``, as 
 ``<!-- /rl-table -->``.  ``--curves`` plots each cell's learning curves, one line per training
 seed, from the ``progress.csv`` each folder keeps (training episodes' success at the end of the
 episode against env steps; folders without it are named and left out).
+
+``--sweep OPTION`` (a task option, e.g. ``clearance``): the cells that differ only in that
+option, as a difficulty axis: a table of each cell's headline rate (public and held out, mean
++/- std across training seeds) against the option's value, ``--sweep-with`` adding other
+policies' ``wirecraft eval --json`` documents on the same variants (e.g. the memoryless expert
+the recipe learns from) as further columns; ``--sweep-plot`` draws it, ``--sweep-doc`` writes
+the table between ``<!-- sweep:OPTION -->`` and ``<!-- /sweep:OPTION -->``.
 """
 
 from __future__ import annotations
@@ -23,6 +31,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from wirecraft.cli_args import number, write_block
 from wirecraft.evaluation.protocol import aggregate_runs, run_evaluation
 from wirecraft.evaluation.seeds import variant_key
@@ -30,6 +40,12 @@ from wirecraft.rl import RUN_FILE
 from wirecraft.rl.common import PROGRESS_FILE, ProgressTable
 
 MARKERS = ("<!-- rl-table -->", "<!-- /rl-table -->")
+
+
+def sweep_markers(option: str) -> tuple[str, str]:
+    return (f"<!-- sweep:{option} -->", f"<!-- /sweep:{option} -->")
+
+
 HELD_OUT_SEED = 1000
 # The reference's state-PPO figures (SR insert, or SR success where a task has no insert flag),
 # by evaluation variant.
@@ -193,6 +209,136 @@ def plot_curves(grouped: dict, out: Path) -> list[Path]:
     return [folder for folder, rows in curves.items() if not rows]
 
 
+def variant_options(variant: str) -> tuple[str, dict[str, str]]:
+    """``family/key=value/...`` (``variant_key``) as (family, {key: value})."""
+    family, *parts = variant.split("/")
+    return family, dict(part.split("=", 1) for part in parts)
+
+
+def _value(text: str):
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def sweep_series(grouped: dict, option: str, extra: list[dict]) -> dict:
+    """The sweeps over task option ``option``: {(family, other options, robot, wire, recipe):
+    {series name: {value: (mean, std, n)}}}.  A cell gives the series "trained, public" and
+    "trained, held out" (its headline rate across its n training seeds); each ``extra``
+    evaluation document one point of the series named by its label and seed list, on the
+    sweep whose other options, robot and wire it shares.  Only sweeps with two values or
+    more; a ValueError if none."""
+    sweeps: dict[tuple, dict] = {}
+    found = set()
+    for (variant, robot, wire, how), runs in grouped.items():
+        family, options = variant_options(variant)
+        if option not in options:
+            continue
+        found.add(family)
+        value = _value(options.pop(option))
+        key = (family, tuple(sorted(options.items())), robot, wire, how)
+        metric = headline_metric(runs[0][2])
+        for split, name in (("public", "trained, public"), ("held_out", "trained, held out")):
+            means = [e[split][metric]["mean"] for _, _, e in runs if e[split]]
+            if len(means) == len(runs):
+                point = (float(np.mean(means)), float(np.std(means)), len(means))
+                sweeps.setdefault(key, {}).setdefault(name, {})[value] = point
+    if not found:
+        raise ValueError(f"no shipped cell has the task option {option!r}")
+    for document in extra:
+        family, options = variant_options(document["variant"])
+        value = _value(options.pop(option, "nan"))
+        kwargs = document.get("env_kwargs", {})
+        robot, wire = kwargs.get("robot", "ur5"), kwargs.get("wire", "articulated")
+        split = "held out" if document["protocol"].get("held_out_seed") is not None else "public"
+        name = f"{document.get('label', 'policy')}, {split}"
+        metric = "insert_success" if "insert_success" in document["metrics"] else "success"
+        rate = document["metrics"][metric]
+        matches = [
+            k
+            for k in sweeps
+            if k[0] == family and k[1:4] == (tuple(sorted(options.items())), robot, wire)
+        ]
+        if not matches:
+            raise ValueError(
+                f"{document.get('label')}: no sweep over {option} has the variant "
+                f"{document['variant']} ({robot}, {wire})"
+            )
+        for key in matches:
+            sweeps[key].setdefault(name, {})[value] = (rate["mean"], rate["std"], 1)
+    kept = {k: v for k, v in sweeps.items() if len(set().union(*map(set, v.values()))) >= 2}
+    if not kept:
+        raise ValueError(f"no two shipped cells differ only in {option}: nothing to sweep")
+    return kept
+
+
+def sweep_table(sweeps: dict, option: str) -> str:
+    blocks = []
+    for (family, options, robot, wire, how), series in sweeps.items():
+        values = sorted(set().union(*map(set, series.values())), key=str)
+        values = sorted(values, key=lambda v: (isinstance(v, str), v))
+        names = list(series)
+        fixed = ", ".join(f"{k}={v}" for k, v in options)
+        lines = [
+            f"{family} ({fixed}), {robot}, {wire}; {how}:",
+            "",
+            f"| {option} | " + " | ".join(names) + " |",
+            "|---|" + "---:|" * len(names),
+        ]
+        for value in values:
+            cells_ = []
+            for name in names:
+                point = series[name].get(value)
+                if point is None:
+                    cells_.append("-")
+                elif point[2] > 1:
+                    cells_.append(
+                        f"{100 * point[0]:.1f} +/- {100 * point[1]:.1f} % ({point[2]} seeds)"
+                    )
+                else:
+                    cells_.append(f"{100 * point[0]:.1f} +/- {100 * point[1]:.1f} %")
+            lines.append(f"| {value} | " + " | ".join(cells_) + " |")
+        blocks.append("\n".join(lines))
+    return "\n\n".join(blocks)
+
+
+def plot_sweep(sweeps: dict, option: str, out: Path) -> None:
+    """One panel per sweep: each series' rate (error bars: std over training seeds, or over
+    the seed list for one run) against the option's value."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(sweeps), figsize=(5.0 * len(sweeps), 3.8), squeeze=False)
+    for ax, ((family, options, robot, wire, how), series) in zip(
+        axes[0], sweeps.items(), strict=True
+    ):
+        for name, points in series.items():
+            values = sorted(points, key=lambda v: (isinstance(v, str), v))
+            ax.errorbar(
+                [str(v) if isinstance(v, str) else v for v in values],
+                [100 * points[v][0] for v in values],
+                yerr=[100 * points[v][1] for v in values],
+                marker="o",
+                capsize=3,
+                label=name,
+                linestyle="--" if "held out" in name else "-",
+            )
+        fixed = ", ".join(f"{k}={v}" for k, v in options)
+        ax.set_title(f"{family} ({fixed})\n{robot}, {wire}; {how}", fontsize=8)
+        ax.set_xlabel(option)
+        ax.set_ylabel("SR (%)")
+        ax.set_ylim(-2, 102)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--checkpoints", type=Path, default=Path("checkpoints"))
@@ -204,14 +350,44 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--readme", type=Path, help="write the table into this file's block")
     parser.add_argument("--curves", type=Path, help="plot the cells' learning curves (PNG)")
+    parser.add_argument("--sweep", metavar="OPTION", help="cells differing only in this option")
+    parser.add_argument(
+        "--sweep-with",
+        type=Path,
+        nargs="+",
+        default=[],
+        metavar="JSON",
+        help="other policies' `wirecraft eval --json` documents drawn beside the sweep",
+    )
+    parser.add_argument("--sweep-plot", type=Path, help="draw the sweep (PNG)")
+    parser.add_argument("--sweep-doc", type=Path, help="write the sweep table into FILE's block")
     args = parser.parse_args(argv)
+    for flag in ("sweep_with", "sweep_plot", "sweep_doc"):
+        if getattr(args, flag) and not args.sweep:
+            parser.error(f"--{flag.replace('_', '-')} applies only with --sweep")
+    for flag in ("curves", "sweep_plot"):
+        path = getattr(args, flag)
+        if path and path.suffix.lower() != ".png":
+            parser.error(f"--{flag.replace('_', '-')} writes a PNG: give a .png file, got {path}")
+    extra = []
+    for path in args.sweep_with:
+        try:
+            document = json.loads(path.read_text())
+            if not {"variant", "metrics", "protocol"} <= set(document):
+                raise ValueError("not a `wirecraft eval --json` document")
+        except (OSError, ValueError) as err:
+            parser.error(f"--sweep-with {path}: {err}")
+        extra.append(document)
     if not args.evaluate and args.workers is not None:
         parser.error("--workers applies only with --evaluate")
-    if args.curves and args.curves.suffix.lower() != ".png":
-        parser.error(f"--curves writes a PNG: give a .png file, got {args.curves}")
     if not shipped_folders(args.checkpoints):
         parser.error(f"no shipped policy (*/{RUN_FILE}) under {args.checkpoints}")
     grouped = cells(args.checkpoints, args.evaluate, args.workers or 1)
+    if args.sweep:  # before anything is written
+        try:
+            sweeps = sweep_series(grouped, args.sweep, extra)
+        except ValueError as err:
+            parser.error(str(err))
     text = table(grouped)
     print(text)
     if args.curves:
@@ -228,6 +404,18 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as err:
             parser.error(str(err))
         print(f"wrote the RL table into {args.readme}")
+    if args.sweep:
+        text = sweep_table(sweeps, args.sweep)
+        print(text)
+        if args.sweep_plot:
+            plot_sweep(sweeps, args.sweep, args.sweep_plot)
+            print(f"wrote the {args.sweep} sweep to {args.sweep_plot}")
+        if args.sweep_doc:
+            try:
+                write_block(args.sweep_doc, sweep_markers(args.sweep), text)
+            except ValueError as err:
+                parser.error(str(err))
+            print(f"wrote the {args.sweep} sweep into {args.sweep_doc}")
     return 0
 
 

@@ -112,3 +112,64 @@ def test_a_seating_cell_is_judged_and_drawn_by_its_success_flag(rl_table, tmp_pa
     assert rl_table.plot_curves(grouped, tmp_path / "curves.png") == []
     (curve,) = drawn
     assert min(curve) > 50  # the training episodes' success (%), not the zero insert column
+
+
+def clearance_copy(out: Path, clearance: float, seed: int, insert: float) -> None:
+    """A shipped folder as if trained at ``clearance`` (its variant and its env keywords)."""
+    shipped_copy(ROOT / "checkpoints" / "ppo_insertion_ethernet_seed0", out, seed, insert)
+    record = json.loads((out / RUN_FILE).read_text())
+    record["env_kwargs"]["clearance"] = clearance
+    for evaluation in record["shipped"]["evaluations"]:
+        evaluation["variant"] = f"insertion/clearance={clearance!r}/connector=ethernet"
+    (out / RUN_FILE).write_text(json.dumps(record))
+
+
+def test_a_sweep_lines_up_the_cells_that_differ_in_one_option(rl_table, tmp_path, capsys):
+    import matplotlib.image
+
+    root = tmp_path / "checkpoints"
+    clearance_copy(root / "a", 0.001, 0, 0.5)
+    clearance_copy(root / "b", 0.001, 1, 0.7)
+    clearance_copy(root / "c", 0.003, 0, 1.0)
+    shipped_copy(ROOT / "checkpoints" / "ppo_insertion_cuboid_seed0", root / "d", 0, 0.25)
+    expert = {
+        "variant": "insertion/clearance=0.001/connector=ethernet",
+        "label": "reactive",
+        "env_kwargs": {"connector": "ethernet", "clearance": 0.001},
+        "protocol": {"held_out_seed": None},
+        "metrics": {"insert_success": {"mean": 0.875, "std": 0.125}},
+    }
+    expert_json = tmp_path / "expert.json"
+    expert_json.write_text(json.dumps(expert))
+    doc, png = tmp_path / "baselines.md", tmp_path / "sweep.png"
+    doc.write_text("a\n<!-- sweep:clearance -->\nold\n<!-- /sweep:clearance -->\nb\n")
+    argv = ["--checkpoints", str(root), "--sweep", "clearance", "--sweep-with", str(expert_json)]
+    assert rl_table.main([*argv, "--sweep-plot", str(png), "--sweep-doc", str(doc)]) == 0
+    rows = {
+        line.split("|")[1].strip(): line
+        for line in doc.read_text().splitlines()
+        if line.startswith("| 0.00")
+    }
+    assert set(rows) == {"0.001", "0.003"}  # the cuboid cell has no second clearance
+    # 0.001: two training seeds, mean 0.6, population std 0.1, on both lists; the expert 87.5 %
+    assert rows["0.001"].count("60.0 +/- 10.0 % (2 seeds)") == 2
+    assert "87.5 +/- 12.5 %" in rows["0.001"]
+    assert rows["0.003"].count("100.0 +/- 0.0 %") == 2 and rows["0.003"].endswith("| - |")
+    assert "old" not in doc.read_text()
+    height, width, _ = matplotlib.image.imread(png).shape
+    assert width > 300 and height > 300
+
+    with pytest.raises(SystemExit):  # an option no cell has, and a sweep of one value
+        rl_table.main(["--checkpoints", str(root), "--sweep", "num_clips"])
+    assert "no shipped cell has the task option 'num_clips'" in capsys.readouterr().err
+    shutil.rmtree(root / "a"), shutil.rmtree(root / "b")
+    with pytest.raises(SystemExit):
+        rl_table.main(["--checkpoints", str(root), "--sweep", "clearance"])
+    assert "no two shipped cells differ only in clearance" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        rl_table.main(["--sweep-plot", str(png)])
+    assert "--sweep-plot applies only with --sweep" in capsys.readouterr().err
+    expert_json.write_text("{}")
+    with pytest.raises(SystemExit):
+        rl_table.main([*argv])
+    assert "not a `wirecraft eval --json` document" in capsys.readouterr().err
