@@ -77,7 +77,9 @@ def test_a_family_gets_relative_inputs_from_its_memoryless_experts_hook():
         TASK = "toy_family"
 
     try:  # an expert without the hook: no relative inputs, and the error names who has them
-        with pytest.raises(ValueError, match="insertion and seating tasks' states, not toy_family"):
+        with pytest.raises(
+            ValueError, match="insertion, routing, seating tasks' states, not toy_family"
+        ):
             actor_transform("relative", "toy_family")
         ToyExpert.relative_features = staticmethod(lambda states: states)
         assert actor_transform("relative", "toy_family") is ToyExpert.relative_features
@@ -172,9 +174,8 @@ def test_bad_warm_start_settings_are_refused_before_anything_is_written(tmp_path
         VisionPPOConfig(actor_inputs="relative")
     run_dir = tmp_path / "run"
     cases = [
-        ("routing", {}, {"dagger_init_iterations": 1}, "insertion task"),
+        ("routing", {"control": "joint"}, {"dagger_init_iterations": 1}, "insertion task"),
         ("insertion", {"control": "joint"}, {"dagger_init_iterations": 1}, "cartesian"),
-        ("routing", {}, {"actor_inputs": "relative"}, "not routing's"),
         ("seating", {}, {"dagger_init_iterations": 1}, "seating task with control='cartesian'"),
     ]
     for task, env_kwargs, overrides, message in cases:

@@ -200,8 +200,8 @@ def test_wirecraft_eval_runs_the_reactive_expert():
     from wirecraft.evaluation.protocol import run_evaluation
 
     assert policy_env_kwargs("reactive", "seating")["control"] == "cartesian"
-    with pytest.raises(ValueError, match="reactive expert 'routing'"):
-        policy_env_kwargs("reactive", "routing")
+    with pytest.raises(ValueError, match="reactive expert 'toy_family'"):
+        policy_env_kwargs("reactive", "toy_family")
     venv = make_venv(2)
     obs, _ = venv.reset(seed=5)
     policy = load_policy("reactive", venv)

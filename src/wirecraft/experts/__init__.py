@@ -2,7 +2,7 @@
 
 # The memoryless experts register themselves in ``reactive.REACTIVE_EXPERTS`` (insertion's is in
 # ``reactive`` itself).
-from wirecraft.experts import reactive_seating  # noqa: F401
+from wirecraft.experts import reactive_routing, reactive_seating  # noqa: F401
 from wirecraft.experts.base import EXPERTS, ScriptedExpert
 from wirecraft.experts.fsm import Phase, VectorFSM
 from wirecraft.experts.insertion import InsertionExpert, InsertionExpertConfig

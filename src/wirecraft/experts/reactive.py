@@ -167,6 +167,7 @@ class ReactivePlugExpert:
         connector = task.connector
         self.plug_length = float(connector.plug_length)
         self.tail_width = 2.0 * float(max(connector.tail_half[1:]))
+        self.grasp_width = self.tail_width  # of what the pads close on
         self.open_command = gripper_for_gap(  # pads open to the tail width + the margin
             self.tail_width + self.pre_open_margin, float(robot.max_opening)
         )
@@ -219,6 +220,11 @@ class ReactivePlugExpert:
             reference=self.home_rot,
         )
 
+    def _grasp_target(self, state):
+        """(TCP position, rotation) that grasps: the plug's tail (``_grasp_pose``)."""
+        lay = self.layout
+        return self._grasp_pose(state[lay.plug_pos], quat_to_mat(state[lay.plug_quat]))
+
     # -- the rules ------------------------------------------------------------------------------
     def _grasp(self, state, tcp, tcp_rot):
         """Pads open, down a funnel onto the grasp pose: the goal sits ``hover`` above it while
@@ -226,9 +232,9 @@ class ReactivePlugExpert:
         tolerance, in between on a ramp; the pads close on the same ramp as the TCP nears it
         in height too."""
         lay, up, open_cmd = self.layout, self.up, self.open_command
-        if state[lay.opening] < self.tail_width - 0.004:  # closed on nothing: open, rise
+        if state[lay.opening] < self.grasp_width - 0.004:  # closed on nothing: open, rise
             return 0.01 * up, np.zeros(3), open_cmd, "reopen"
-        grasp, grasp_rot = self._grasp_pose(state[lay.plug_pos], quat_to_mat(state[lay.plug_quat]))
+        grasp, grasp_rot = self._grasp_target(state)
         turning = rotation_error(grasp_rot, tcp_rot)
         turn = self.gain * turning
         offset = tcp - grasp

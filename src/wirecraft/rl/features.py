@@ -31,7 +31,7 @@ def actor_transform(name: str, task: str):
     tasks = relative_tasks()
     if task not in tasks:
         raise ValueError(
-            f"actor_inputs={name!r} is defined for the {' and '.join(tasks)} tasks' states, "
+            f"actor_inputs={name!r} is defined for the {', '.join(tasks)} tasks' states, "
             f"not {task}'s"
         )
     return REACTIVE_EXPERTS.get(task).relative_features
