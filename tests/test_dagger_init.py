@@ -67,13 +67,13 @@ def test_relative_features_refuse_a_state_that_is_not_an_insertion_state():
 
 
 def test_a_family_gets_relative_inputs_from_its_memoryless_experts_hook():
-    from wirecraft.experts.reactive import REACTIVE_EXPERTS, ReactivePlugExpert
+    from wirecraft.experts.reactive import REACTIVE_EXPERTS, ReactiveGraspExpert
 
     assert actor_transform("relative", "insertion") is relative_features
     assert actor_transform("state", "insertion") is None
 
     @REACTIVE_EXPERTS.register("toy_family")
-    class ToyExpert(ReactivePlugExpert):
+    class ToyExpert(ReactiveGraspExpert):
         TASK = "toy_family"
 
     try:  # an expert without the hook: no relative inputs, and the error names who has them
@@ -271,5 +271,8 @@ def test_bad_auxiliary_dagger_settings_are_refused(tmp_path):
         VisionPPOConfig(dagger_aux_lr=1e-4)
     run_dir = tmp_path / "run"
     with pytest.raises(ValueError, match="insertion task"):
-        train("ppo", "routing", {}, run_dir, 16, overrides={"dagger_aux_lr": 1e-4}, progress=False)
+        overrides = {"dagger_aux_lr": 1e-4}
+        train(
+            "ppo", "routing", {"control": "joint"}, run_dir, 16, overrides=overrides, progress=False
+        )
     assert not run_dir.exists()

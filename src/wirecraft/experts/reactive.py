@@ -124,12 +124,13 @@ def squashed(near) -> list[np.ndarray]:
     return [np.tanh(near / scale) for scale in FINE_SCALES]
 
 
-class ReactivePlugExpert:
-    """What the reactive experts of the tasks whose robot picks up the plug share: the scene
-    constants of the gripper and the plug, ``act`` over a batch of states, and the grasp
-    funnel onto the plug's tail (``_grasp``).  A subclass sets ``TASK``, ``PHASES``,
-    ``layout_class`` (column slices of its task's state: ``opening``, ``opening_rate``,
-    ``tcp_pos``, ``tcp_quat``, ``pads``, ``plug_pos``, ``plug_quat``, ``size``), the grasp
+class ReactiveGraspExpert:
+    """What the reactive experts share: the scene constants of the gripper and the plug,
+    ``act`` over a batch of states, and the grasp funnel (``_grasp``) onto the pose
+    ``_grasp_target(state)`` gives (by default the plug's tail, ``_grasp_pose``; ``grasp_width``
+    is what the pads close on).  A subclass sets ``TASK``, ``PHASES``, ``layout_class`` (column
+    slices of its task's state: ``opening``, ``opening_rate``, ``tcp_pos``, ``tcp_quat``,
+    ``pads``, ``size``, and ``plug_pos``, ``plug_quat`` for the default target), the grasp
     geometry (``min_tcp_height``, ``grasp_back``, ``approach_pitch``) and ``_command``, and
     may set ``relative_features`` (a static method: (N, width) states to (N, width +
     ``RELATIVE_WIDTH``), the states and goal-relative inputs for a learner's actor)."""
@@ -257,7 +258,7 @@ class ReactivePlugExpert:
 
 
 @REACTIVE_EXPERTS.register("insertion")
-class ReactiveInsertionExpert(ReactivePlugExpert):
+class ReactiveInsertionExpert(ReactiveGraspExpert):
     """``ReactiveInsertionExpert(env_or_envs, gain=None)``; ``act(states)`` maps (N,
     state_dim) insertion states to (N, 7) ``cartesian`` actions (module docstring).  ``gain``
     overrides the class's (in (0, 1]).  The scene constants come from the first environment:

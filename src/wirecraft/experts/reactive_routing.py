@@ -9,7 +9,7 @@ the pads' contacts, each clip's slot centre, yaw and seated flag, 10 points alon
 clamp) and constants of the scene (the clip's size, the wire's radius, the gripper), and routes
 the first clip whose flag reads empty:
 
-- grasping: the funnel of ``ReactivePlugExpert._grasp`` onto the point of the wire (the
+- grasping: the funnel of ``ReactiveGraspExpert._grasp`` onto the point of the wire (the
   polyline through the state's 10 points) that lies ``taut + slack`` along it from the anchor
   (the clamp, or the previous clip's slot), where ``taut`` is the straight length from the
   anchor to the pads' place over the clip at the carry height; TCP pointing down, pads across
@@ -34,7 +34,7 @@ from wirecraft.experts.base import rotation_angle
 from wirecraft.experts.insertion import gripper_for_gap
 from wirecraft.experts.reactive import (
     REACTIVE_EXPERTS,
-    ReactivePlugExpert,
+    ReactiveGraspExpert,
     RobotStateLayout,
     _capped,
     squashed,
@@ -149,7 +149,7 @@ def route_geometry(states, lay, table: float = 0.0) -> dict[str, np.ndarray]:
 
 
 @REACTIVE_EXPERTS.register("routing")
-class ReactiveRoutingExpert(ReactivePlugExpert):
+class ReactiveRoutingExpert(ReactiveGraspExpert):
     """``ReactiveRoutingExpert(env_or_envs, gain=None)``; ``act(states)`` maps (N, state_dim)
     routing states to (N, 7) ``cartesian`` actions (module docstring)."""
 

@@ -9,7 +9,7 @@ pads' contacts, the plug's pose, the channel's joint points at floor height) and
 the scene (the wire's radius and end gap, the plug lead, the gripper), and lays the wire into the
 channel by its end:
 
-- grasping: the insertion expert's funnel onto the plug's tail (``ReactivePlugExpert._grasp``),
+- grasping: the insertion expert's funnel onto the plug's tail (``ReactiveGraspExpert._grasp``),
   pointing straight down, pads across the tail;
 - both pads on the plug: rise to ``lift`` while low, turn the plug onto the heading of the
   channel's last segment, carry the wire's end to ``lay_height`` above the floor ``lay_from``
@@ -33,7 +33,7 @@ import numpy as np
 from wirecraft.experts.insertion import gripper_for_gap
 from wirecraft.experts.reactive import (
     REACTIVE_EXPERTS,
-    ReactivePlugExpert,
+    ReactiveGraspExpert,
     RobotStateLayout,
     _capped,
     plug_in_tcp_frame,
@@ -73,7 +73,7 @@ class SeatingStateLayout(RobotStateLayout):
 
 
 @REACTIVE_EXPERTS.register("seating")
-class ReactiveSeatingExpert(ReactivePlugExpert):
+class ReactiveSeatingExpert(ReactiveGraspExpert):
     """``ReactiveSeatingExpert(env_or_envs, gain=None)``; ``act(states)`` maps (N, state_dim)
     seating states to (N, 7) ``cartesian`` actions (module docstring)."""
 
