@@ -159,6 +159,54 @@ def test_dagger_warm_start_trains_the_actor_on_relative_inputs_and_loads_back(
     )
 
 
+@pytest.mark.parametrize(
+    "task, env_kwargs",
+    [
+        ("seating", {"channel": "straight", "control": "cartesian"}),
+        ("routing", {"num_clips": 1, "control": "cartesian"}),
+    ],
+)
+def test_dagger_warm_start_runs_on_each_family_and_its_policy_loads_back(
+    task, env_kwargs, tmp_path, saved_actor_means
+):
+    """The recipe beyond insertion: the family's memoryless expert labels, its flags are
+    recorded per wave, and the loaded policy computes the family's relative inputs itself."""
+    import torch
+
+    from wirecraft.experts.reactive import REACTIVE_EXPERTS
+
+    overrides = {
+        "num_envs": 2,
+        "num_steps_per_env": 8,
+        "actor_hidden_dims": (32, 16),
+        "critic_hidden_dims": (16,),
+        "num_mini_batches": 2,
+        "num_learning_epochs": 1,
+        "threads": 1,
+        "actor_inputs": "relative",
+        "dagger_init_iterations": 1,
+        "dagger_init_epochs": 2,
+    }
+    kwargs = {**env_kwargs, "episode_seconds": 2.0}
+    train("ppo", task, kwargs, tmp_path, 16, overrides=overrides, progress=False)
+    run = json.loads((tmp_path / RUN_FILE).read_text())
+    first, alone = run["dagger_init"]
+    assert (first["beta"], alone["beta"]) == (1.0, 0.0)
+    # one success flag (no insert flag); 2 s of 60 Hz control steps per wave in 2 environments
+    assert first.keys() >= {"success"} and "insert" not in first
+    assert (first["labels"], alone["labels"]) == (240, 480)
+
+    venv = wirecraft.make_vec(task, 2, threads=1, **env_kwargs)
+    obs, _ = venv.reset(seed=4)
+    policy = load_policy(tmp_path, venv)
+    venv.close()
+    saved = torch.load(tmp_path / run["latest_checkpoint"], weights_only=False)
+    features = REACTIVE_EXPERTS.get(task).relative_features(obs)
+    np.testing.assert_allclose(
+        policy.act(obs), saved_actor_means(saved["actor_state_dict"], features), atol=1e-5
+    )
+
+
 def test_bad_warm_start_settings_are_refused_before_anything_is_written(tmp_path):
     with pytest.raises(ValueError, match="actor_inputs"):
         PPOConfig(actor_inputs="pixels")

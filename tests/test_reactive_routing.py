@@ -1,7 +1,7 @@
 """ReactiveRoutingExpert: its action is a function of the routing state alone (no memory), it
 routes one clip by the task's own success flag, its push comes down over the clip with the pads
 across the slot, its goal-relative features agree with the simulation, and bad input is
-refused."""
+refused (its DAgger run: test_dagger_init.py)."""
 
 import numpy as np
 import pytest
@@ -143,49 +143,6 @@ def test_reactive_routing_expert_refuses_bad_input():
     with pytest.raises(ValueError, match="cartesian"):
         ReactiveRoutingExpert(joint)
     joint.close()
-
-
-def test_dagger_warm_start_runs_on_routing_with_relative_inputs_and_loads_back(
-    tmp_path, saved_actor_means
-):
-    import json
-
-    import torch
-
-    from wirecraft.rl import RUN_FILE, load_policy, train
-
-    overrides = {
-        "num_envs": 2,
-        "num_steps_per_env": 8,
-        "actor_hidden_dims": (32, 16),
-        "critic_hidden_dims": (16,),
-        "num_mini_batches": 2,
-        "num_learning_epochs": 1,
-        "threads": 1,
-        "actor_inputs": "relative",
-        "dagger_init_iterations": 1,
-        "dagger_init_epochs": 2,
-    }
-    env_kwargs = {"num_clips": 1, "control": "cartesian", "episode_seconds": 2.0}
-    train("ppo", "routing", env_kwargs, tmp_path, 16, overrides=overrides, progress=False)
-    run = json.loads((tmp_path / RUN_FILE).read_text())
-    first, alone = run["dagger_init"]
-    assert (first["beta"], alone["beta"]) == (1.0, 0.0)
-    # routing raises one success flag; 2 s of 60 Hz control steps per wave in 2 environments
-    assert first.keys() >= {"success"} and "insert" not in first
-    assert (first["labels"], alone["labels"]) == (240, 480)
-
-    # the loaded policy computes the routing features itself: its action is the saved actor's
-    venv = make_venv(2)
-    obs, _ = venv.reset(seed=4)
-    policy = load_policy(tmp_path, venv)
-    venv.close()
-    saved = torch.load(tmp_path / run["latest_checkpoint"], weights_only=False)
-    np.testing.assert_allclose(
-        policy.act(obs),
-        saved_actor_means(saved["actor_state_dict"], ReactiveRoutingExpert.relative_features(obs)),
-        atol=1e-5,
-    )
 
 
 def test_wirecraft_eval_and_collect_run_the_reactive_routing_expert(tmp_path):

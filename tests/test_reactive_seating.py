@@ -1,8 +1,6 @@
 """ReactiveSeatingExpert: its action is a function of the seating state alone (no memory), it
 lays the wire into the straight channel by the task's own success flag, its lay runs along the
-channel towards the goal, DAgger trains on it, and bad input is refused."""
-
-import json
+channel towards the goal, and bad input is refused (its DAgger run: test_dagger_init.py)."""
 
 import numpy as np
 import pytest
@@ -151,48 +149,6 @@ def test_seating_relative_features_are_the_plug_seen_from_the_tcp_and_the_goal(c
     env.close()
     with pytest.raises(ValueError, match="width of the seating task"):
         ReactiveSeatingExpert.relative_features(obs[None, :81])
-
-
-def test_dagger_warm_start_runs_on_seating_with_relative_inputs_and_loads_back(
-    tmp_path, saved_actor_means
-):
-    import torch
-
-    from wirecraft.rl import RUN_FILE, load_policy, train
-
-    overrides = {
-        "num_envs": 2,
-        "num_steps_per_env": 8,
-        "actor_hidden_dims": (32, 16),
-        "critic_hidden_dims": (16,),
-        "num_mini_batches": 2,
-        "num_learning_epochs": 1,
-        "threads": 1,
-        "actor_inputs": "relative",
-        "dagger_init_iterations": 1,
-        "dagger_init_epochs": 2,
-    }
-    env_kwargs = {"channel": "straight", "control": "cartesian", "episode_seconds": 2.0}
-    train("ppo", "seating", env_kwargs, tmp_path, 16, overrides=overrides, progress=False)
-    run = json.loads((tmp_path / RUN_FILE).read_text())
-    first, alone = run["dagger_init"]
-    assert (first["beta"], alone["beta"]) == (1.0, 0.0)
-    # seating raises one success flag; 2 s of 60 Hz control steps per wave in 2 environments
-    assert first.keys() >= {"success"} and "insert" not in first
-    assert (first["labels"], alone["labels"]) == (240, 480)
-
-    # the loaded policy computes the seating features itself: its action is the saved actor's
-    venv = make_venv(2)
-    obs, _ = venv.reset(seed=4)
-    policy = load_policy(tmp_path, venv)
-    venv.close()
-    saved = torch.load(tmp_path / run["latest_checkpoint"], weights_only=False)
-    state = saved["actor_state_dict"]
-    np.testing.assert_allclose(
-        policy.act(obs),
-        saved_actor_means(state, ReactiveSeatingExpert.relative_features(obs)),
-        atol=1e-5,
-    )
 
 
 def test_wirecraft_eval_runs_the_reactive_expert():
