@@ -641,7 +641,10 @@ def test_ray_tasks_generate_the_same_episode(reference, tmp_path):
         (["--workers", "-1"], "--workers: must be"),
         (["--vcodec", "mpeg1"], "--vcodec: invalid choice"),
         (["--control", "joint"], "drives control='cartesian'"),
-        (["--task", "routing", "--expert", "reactive"], "no reactive expert for task 'routing'"),
+        (
+            ["--task", "routing", "--expert", "reactive", "--control", "joint"],
+            "reactive routing expert drives control='cartesian'",
+        ),
         (["--expert", "oracle"], "--expert: invalid choice"),
         (["--expert", "reactive", "--policy", "runs/x"], "--expert: applies only with scripted"),
     ],

@@ -156,3 +156,5 @@ def test_wirecraft_eval_and_collect_run_the_reactive_routing_expert(tmp_path):
     np.testing.assert_array_equal(policy.act(obs), ReactiveRoutingExpert(venv).act(obs))
     venv.close()
     assert demonstrator_class("routing", "reactive").reactive is ReactiveRoutingExpert
+    with pytest.raises(ValueError, match="no reactive expert for task 'toy_family'"):
+        demonstrator_class("toy_family", "reactive")
