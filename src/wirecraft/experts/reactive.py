@@ -38,7 +38,7 @@ import numpy as np
 from wirecraft.experts.fsm import unwrap_envs
 from wirecraft.experts.insertion import grasp_pose, gripper_for_gap, plug_goal_rot
 from wirecraft.geometry import quat_to_mat, quats_to_mats, rotation_error
-from wirecraft.numerics import cross, dot, matmul, norm
+from wirecraft.numerics import cross, dot, matmul, matvec, norm, tanh
 from wirecraft.registry import Registry
 
 PHASES = (
@@ -114,14 +114,15 @@ def plug_in_tcp_frame(states, lay) -> tuple[np.ndarray, np.ndarray]:
     tcp_rot = quats_to_mats(states[:, lay.tcp_quat])
     plug_rot = quats_to_mats(states[:, lay.plug_quat])
     offset = states[:, lay.plug_pos] - states[:, lay.tcp_pos]
-    position = np.einsum("nji,nj->ni", tcp_rot, offset)
-    rotation = np.einsum("nji,njk->nik", tcp_rot, plug_rot).reshape(len(states), 9)
+    into_tcp = np.swapaxes(tcp_rot, -1, -2)
+    position = matvec(into_tcp, offset)
+    rotation = matmul(into_tcp, plug_rot).reshape(len(states), 9)
     return position, rotation
 
 
 def squashed(near) -> list[np.ndarray]:
     """``near`` (N, k) metres as tanh(near / scale) at each of ``FINE_SCALES``."""
-    return [np.tanh(near / scale) for scale in FINE_SCALES]
+    return [tanh(near / scale) for scale in FINE_SCALES]
 
 
 class ReactiveGraspExpert:

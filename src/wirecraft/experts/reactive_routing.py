@@ -40,7 +40,7 @@ from wirecraft.experts.reactive import (
     squashed,
 )
 from wirecraft.geometry import quat_to_mat, quats_to_mats, rotation_error
-from wirecraft.numerics import cross, dot, norm
+from wirecraft.numerics import cross, dot, matvec, norm
 from wirecraft.tasks.routing.options import MAX_CLIPS
 
 PHASES = (
@@ -180,8 +180,9 @@ class ReactiveRoutingExpert(ReactiveGraspExpert):
         route = route_geometry(states, lay)
         tcp = states[:, lay.tcp_pos]
         tcp_rot = quats_to_mats(states[:, lay.tcp_quat])
-        axis_in_tcp = np.einsum("nji,nj->ni", tcp_rot, route["axis"])
-        tangent_in_tcp = np.einsum("nji,nj->ni", tcp_rot, route["tangent"])
+        into_tcp = np.swapaxes(tcp_rot, -1, -2)
+        axis_in_tcp = matvec(into_tcp, route["axis"])
+        tangent_in_tcp = matvec(into_tcp, route["tangent"])
         near = np.concatenate([route["push"] - tcp, route["grasp"] - tcp, route["crossing"]], 1)
         return np.concatenate([states, axis_in_tcp, tangent_in_tcp, near, *squashed(near)], 1)
 
