@@ -581,7 +581,7 @@ def _collect_args(p):
         choices=("scripted", "reactive"),
         default=None,
         help="who demonstrates: the task's scripted expert (default) or its reactive expert "
-        "(no memory: the action is a function of the state; insertion only)",
+        "(no memory: the action is a function of the state)",
     )
     p.add_argument("--keep-failures", action="store_true", help="also save failed episodes")
     p.add_argument("--resume", action="store_true", help="continue the dataset in --out")
