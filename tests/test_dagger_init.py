@@ -20,6 +20,21 @@ from wirecraft.rl.features import actor_input_dim, actor_transform
 relative_features = ReactiveInsertionExpert.relative_features
 
 
+# A warm start small enough for a test: 2 environments, tiny networks, one DAgger wave.
+TINY_WARM_START = {
+    "num_envs": 2,
+    "num_steps_per_env": 8,
+    "actor_hidden_dims": (32, 16),
+    "critic_hidden_dims": (16,),
+    "num_mini_batches": 2,
+    "num_learning_epochs": 1,
+    "threads": 1,
+    "actor_inputs": "relative",
+    "dagger_init_iterations": 1,
+    "dagger_init_epochs": 2,
+}
+
+
 def _world(env):
     """(TCP position, TCP rotation, plug position, plug rotation, tip) in the world."""
     env = env.unwrapped
@@ -126,19 +141,7 @@ def test_dagger_warm_start_trains_the_actor_on_relative_inputs_and_loads_back(
     import torch
 
     run_dir = tmp_path / "ppo"
-    overrides = {
-        "num_envs": 2,
-        "num_steps_per_env": 8,
-        "actor_hidden_dims": (32, 16),
-        "critic_hidden_dims": (16,),
-        "num_mini_batches": 2,
-        "num_learning_epochs": 1,
-        "threads": 1,
-        "actor_inputs": "relative",
-        "dagger_init_iterations": 1,
-        "dagger_init_epochs": 2,
-        "init_std": 0.05,
-    }
+    overrides = {**TINY_WARM_START, "init_std": 0.05}
     train("ppo", "insertion", {}, run_dir, 16, overrides=overrides, progress=False)
     run = json.loads((run_dir / RUN_FILE).read_text())
     first, alone = run["dagger_init"]
@@ -175,18 +178,7 @@ def test_dagger_warm_start_runs_on_each_family_and_its_policy_loads_back(
 
     from wirecraft.experts.reactive import REACTIVE_EXPERTS
 
-    overrides = {
-        "num_envs": 2,
-        "num_steps_per_env": 8,
-        "actor_hidden_dims": (32, 16),
-        "critic_hidden_dims": (16,),
-        "num_mini_batches": 2,
-        "num_learning_epochs": 1,
-        "threads": 1,
-        "actor_inputs": "relative",
-        "dagger_init_iterations": 1,
-        "dagger_init_epochs": 2,
-    }
+    overrides = TINY_WARM_START
     kwargs = {**env_kwargs, "episode_seconds": 2.0}
     train("ppo", task, kwargs, tmp_path, 16, overrides=overrides, progress=False)
     run = json.loads((tmp_path / RUN_FILE).read_text())

@@ -222,6 +222,10 @@ class ReactiveGraspExpert:
             reference=self.home_rot,
         )
 
+    def _flat(self, vector) -> np.ndarray:
+        """``vector`` (base frame) less its vertical part."""
+        return vector - dot(vector, self.up) * self.up
+
     def _grasp_target(self, state):
         """(TCP position, rotation) that grasps: the plug's tail (``_grasp_pose``)."""
         lay = self.layout

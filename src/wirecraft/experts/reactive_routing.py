@@ -196,9 +196,6 @@ class ReactiveRoutingExpert(ReactiveGraspExpert):
     def _height(self, point) -> float:
         return dot(point, self.up) - self.table
 
-    def _flat(self, vector):
-        return vector - dot(vector, self.up) * self.up
-
     def _down_rot(self, axis, near):
         """TCP rotation pointing down with the pads closing across the horizontal ``axis``; of
         the two yaws (the gripper is symmetric), the one nearer the rotation ``near``."""
@@ -212,8 +209,8 @@ class ReactiveRoutingExpert(ReactiveGraspExpert):
         return min(rots, key=lambda rot: rotation_angle(rot, near))
 
     def _grasp_target(self, state):
-        route = route_geometry(state[None], self.layout, self.table)
-        point, tangent = route["grasp"][0], route["tangent"][0]
+        """The grasp point of ``_command``'s route (the state being commanded)."""
+        point, tangent = self._route["grasp"], self._route["tangent"]
         height = max(self.grasp_height, self._height(point) + WIRE_BELOW_TCP)
         grasp_rot = self._down_rot(tangent, self.home_rot)  # the label: a function of the wire
         return point + (height - self._height(point)) * self.up, grasp_rot
@@ -223,6 +220,7 @@ class ReactiveRoutingExpert(ReactiveGraspExpert):
         lay, up = self.layout, self.up
         tcp, tcp_rot = state[lay.tcp_pos], quat_to_mat(state[lay.tcp_quat])
         route = {k: v[0] for k, v in route_geometry(state[None], lay, self.table).items()}
+        self._route = route  # the grasp rules read it too (``_grasp_target``)
         if not route["pending"]:
             if state[lay.pads].max() > 0.5 or state[lay.opening] < self.grasp_width + 0.01:
                 return np.zeros(3), np.zeros(3), self.open_command, "release"

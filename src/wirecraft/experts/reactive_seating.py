@@ -137,9 +137,6 @@ class ReactiveSeatingExpert(ReactiveGraspExpert):
         steps = np.sqrt(((path[1:] - path[:-1]) ** 2).sum(axis=1))
         return path, np.concatenate([[0.0], np.cumsum(steps)])
 
-    def _flat(self, vector) -> np.ndarray:
-        return vector - dot(vector, self.up) * self.up
-
     def _project(self, path, arc, point) -> tuple[float, float]:
         """(arc, horizontal distance) of ``point``'s nearest place on the path; past the last
         point the path runs on straight (the arc exceeds its length)."""
