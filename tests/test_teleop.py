@@ -405,23 +405,38 @@ def test_a_viewer_device_without_a_display_is_a_clear_error(tmp_path, monkeypatc
     assert not out.exists()
 
 
+def test_a_display_that_does_not_answer_is_a_clear_error_with_glfws_reason(monkeypatch):
+    from wirecraft.envs.env import check_display
+
+    pytest.importorskip("glfw")
+    monkeypatch.setenv("DISPLAY", ":4093")  # no X server listens there (none was started)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    if os.path.exists("/tmp/.X11-unix/X4093"):
+        pytest.skip("an X server runs on :4093 here")
+    with pytest.raises(RuntimeError) as raised:
+        check_display()
+    assert "':4093'" in str(raised.value) and "X11: Failed to open display" in str(raised.value)
+
+
 # -- a real window ------------------------------------------------------------------------------
 def _x_tools() -> list[str]:
     return [tool for tool in ("Xvfb", "xdotool") if shutil.which(tool) is None]
 
 
 @pytest.fixture
-def xvfb():
-    """A fresh Xvfb display (its number chosen by Xvfb); skipped where Xvfb or xdotool is
-    missing (Debian: apt-get install xvfb xdotool)."""
+def xvfb(tmp_path):
+    """A fresh Xvfb display (its number chosen by Xvfb), answering clients before the test
+    starts; skipped where Xvfb or xdotool is missing (Debian: apt-get install xvfb xdotool)."""
     missing = _x_tools()
     if missing:
         pytest.skip(f"{' and '.join(missing)} not installed (apt-get install xvfb xdotool)")
+    log = tmp_path / "xvfb.log"
     read, write = os.pipe()
-    proc = subprocess.Popen(
-        ["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
-        pass_fds=(write,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+    with open(log, "wb") as log_file:
+        proc = subprocess.Popen(
+            ["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+            pass_fds=(write,), stdout=log_file, stderr=subprocess.STDOUT,
+        )  # fmt: skip
     os.close(write)
     number = b""
     with os.fdopen(read, "rb") as pipe:
@@ -432,8 +447,16 @@ def xvfb():
             number += chunk
     if not number.strip():
         proc.kill()
-        pytest.skip("Xvfb did not start")
-    yield f":{int(number)}"
+        pytest.skip(f"Xvfb did not start: {log.read_text(errors='replace')}")
+    display = f":{int(number)}"
+    deadline = time.monotonic() + 30
+    while _xdotool(display, "getdisplaygeometry").strip() == "":
+        assert proc.poll() is None and time.monotonic() < deadline, (
+            f"Xvfb on {display} answers no client (running: {proc.poll() is None}): "
+            f"{log.read_text(errors='replace')}"
+        )
+        time.sleep(0.2)
+    yield display
     proc.terminate()
     proc.wait(timeout=10)
 
@@ -476,7 +499,10 @@ def test_keyboard_drives_the_robot_in_a_real_window(tmp_path, xvfb):
         while not window and proc.poll() is None and time.monotonic() < deadline:
             window = _xdotool(xvfb, "search", "--name", "MuJoCo").split("\n")[0].strip()
             time.sleep(0.5)
-        assert window, f"no viewer window: {proc.stdout.read() if proc.poll() is not None else ''}"
+        assert window, (
+            f"no viewer window: {proc.stdout.read() if proc.poll() is not None else ''}; "
+            f"the display still answers: {_xdotool(xvfb, 'getdisplaygeometry')!r}"
+        )
         time.sleep(2.0)  # the first frames
         x = lambda *args: _xdotool(xvfb, *args)  # noqa: E731
         x("mousemove", "--window", window, "300", "300")  # keys go to the window under it

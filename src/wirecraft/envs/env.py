@@ -105,13 +105,14 @@ def check_display() -> None:
         import glfw
     except ImportError as err:
         raise RuntimeError(NO_DISPLAY.format(reason=f"GLFW is not available ({err})")) from None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # glfw warns of the failure too; the error says it
+    with warnings.catch_warnings(record=True) as glfw_warnings:
+        warnings.simplefilter("always")  # glfw reports its reason as a warning: the error says it
         ok = glfw.init()
     if not ok:
         display = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+        said = "; ".join(str(w.message) for w in glfw_warnings) or "no reason given"
         raise RuntimeError(
-            NO_DISPLAY.format(reason=f"GLFW could not initialize on display {display!r}")
+            NO_DISPLAY.format(reason=f"GLFW could not initialize on display {display!r} ({said})")
         )
 
 
