@@ -199,6 +199,79 @@ def test_dagger_warm_start_runs_on_each_family_and_its_policy_loads_back(
     )
 
 
+def test_a_warm_start_stopped_mid_wave_resumes_to_the_same_run_as_one_never_stopped(
+    tmp_path, monkeypatch
+):
+    """Killed in wave 2 of 3 (the first two saved), resumed: the waves' records, the saved
+    checkpoint's actor and critic equal those of a run that was never stopped, bit for bit; the
+    waves' data is gone once the last wave is fitted."""
+    import torch
+
+    from wirecraft.rl import dagger
+
+    overrides = {**TINY_WARM_START, "dagger_init_iterations": 2}
+    env_kwargs = {"episode_seconds": 1.0}
+    whole, stopped = tmp_path / "whole", tmp_path / "stopped"
+    train("ppo", "insertion", env_kwargs, whole, 16, overrides=overrides, progress=False)
+
+    run_wave, calls = dagger.run_wave, []
+
+    def killed_in_the_third_wave(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return run_wave(*args, **kwargs)
+
+    monkeypatch.setattr(dagger, "run_wave", killed_in_the_third_wave)
+    with pytest.raises(KeyboardInterrupt):
+        train("ppo", "insertion", env_kwargs, stopped, 16, overrides=overrides, progress=False)
+    assert sorted(p.name for p in (stopped / "dagger_init").iterdir()) == [
+        "state.pt",
+        "wave_0.npz",
+        "wave_1.npz",
+    ]
+    assert len(torch.load(stopped / "dagger_init" / "state.pt", weights_only=False)["history"]) == 2
+    monkeypatch.setattr(dagger, "run_wave", run_wave)
+    calls.clear()
+    train("ppo", "insertion", None, stopped, 16, resume=True, progress=False)
+
+    runs = [json.loads((d / RUN_FILE).read_text()) for d in (whole, stopped)]
+    assert runs[0]["dagger_init"] == runs[1]["dagger_init"]
+    assert [w["beta"] for w in runs[1]["dagger_init"]] == [1.0, 0.5, 0.0]
+    saved = [
+        torch.load(d / r["latest_checkpoint"], weights_only=False)
+        for d, r in zip((whole, stopped), runs, strict=True)
+    ]
+    for part in ("actor_state_dict", "critic_state_dict"):
+        for name, value in saved[0][part].items():
+            assert torch.equal(value, saved[1][part][name]), (part, name)
+    assert [p.name for p in (stopped / "dagger_init").iterdir()] == ["state.pt"]
+
+
+def test_a_saved_warm_start_with_other_settings_is_refused(tmp_path):
+    import torch
+
+    from wirecraft.rl.dagger import WarmStartProgress
+
+    WarmStartProgress(tmp_path, [1.0, 0.0], 3).save(
+        _FakeRunner(), np.random.default_rng(0), [{"wave": 0}], np.zeros((1, 2)), np.zeros((1, 1)),
+        np.zeros(1), done=False,
+    )  # fmt: skip
+    assert torch.load(tmp_path / "state.pt", weights_only=False)["history"] == [{"wave": 0}]
+    with pytest.raises(ValueError, match="holds a warm start with"):
+        WarmStartProgress(tmp_path, [1.0, 0.5, 0.0], 3).load(
+            _FakeRunner(), np.random.default_rng(0)
+        )
+
+
+class _FakeRunner:
+    class alg:  # noqa: N801
+        import torch
+
+        actor = torch.nn.Linear(2, 1)
+        critic = torch.nn.Linear(2, 1)
+
+
 def test_bad_warm_start_settings_are_refused_before_anything_is_written(tmp_path):
     with pytest.raises(ValueError, match="actor_inputs"):
         PPOConfig(actor_inputs="pixels")

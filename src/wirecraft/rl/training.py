@@ -391,6 +391,7 @@ def _dagger_init(runner, cfg, run: Run, venv, progress: bool, obs_groups) -> Non
         seed=cfg.seed + 15_485_863,  # not the training episodes' seeds
         obs_groups=obs_groups,
         progress=progress,
+        save_dir=run.dir / "dagger_init",
     )
     run.data["dagger_init"] = history
     run.save()
