@@ -18,7 +18,8 @@ episode against env steps; folders without it are named and left out).
 
 ``--sweep OPTION`` (a task option, e.g. ``clearance``): the cells that differ only in that
 option, as a difficulty axis: a table of each cell's headline rate (public and held out, mean
-+/- std across training seeds) against the option's value, ``--sweep-with`` adding other
++/- std across training seeds; a cell of one seed: std over its 4 seed groups) against the
+option's value, ``--sweep-with`` adding other
 policies' ``wirecraft eval --json`` documents on the same variants (e.g. the memoryless expert
 the recipe learns from) as further columns; ``--sweep-plot`` draws it, ``--sweep-doc`` writes
 the table between ``<!-- sweep:OPTION -->`` and ``<!-- /sweep:OPTION -->``.
@@ -225,10 +226,11 @@ def _value(text: str):
 def sweep_series(grouped: dict, option: str, extra: list[dict]) -> dict:
     """The sweeps over task option ``option``: {(family, other options, robot, wire, recipe):
     {series name: {value: (mean, std, n)}}}.  A cell gives the series "trained, public" and
-    "trained, held out" (its headline rate across its n training seeds); each ``extra``
-    evaluation document one point of the series named by its label and seed list, on the
-    sweep whose other options, robot and wire it shares.  Only sweeps with two values or
-    more; a ValueError if none."""
+    "trained, held out" (its headline rate: mean and std across its n training seeds; with
+    one seed, the std over its evaluation's seed groups); each ``extra`` evaluation document
+    one point (n = 0) of the series named by its label and seed list, on the sweep whose other
+    options, robot and wire it shares.  Only sweeps with two values or more; a ValueError if
+    none."""
     sweeps: dict[tuple, dict] = {}
     found = set()
     for (variant, robot, wire, how), runs in grouped.items():
@@ -242,7 +244,9 @@ def sweep_series(grouped: dict, option: str, extra: list[dict]) -> dict:
         for split, name in (("public", "trained, public"), ("held_out", "trained, held out")):
             means = [e[split][metric]["mean"] for _, _, e in runs if e[split]]
             if len(means) == len(runs):
-                point = (float(np.mean(means)), float(np.std(means)), len(means))
+                # one training seed: the spread over its evaluation's seed groups
+                spread = np.std(means) if len(runs) > 1 else runs[0][2][split][metric]["std"]
+                point = (float(np.mean(means)), float(spread), len(means))
                 sweeps.setdefault(key, {}).setdefault(name, {})[value] = point
     if not found:
         raise ValueError(f"no shipped cell has the task option {option!r}")
@@ -266,7 +270,7 @@ def sweep_series(grouped: dict, option: str, extra: list[dict]) -> dict:
                 f"{document['variant']} ({robot}, {wire})"
             )
         for key in matches:
-            sweeps[key].setdefault(name, {})[value] = (rate["mean"], rate["std"], 1)
+            sweeps[key].setdefault(name, {})[value] = (rate["mean"], rate["std"], 0)
     kept = {k: v for k, v in sweeps.items() if len(set().union(*map(set, v.values()))) >= 2}
     if not kept:
         raise ValueError(f"no two shipped cells differ only in {option}: nothing to sweep")
@@ -292,10 +296,9 @@ def sweep_table(sweeps: dict, option: str) -> str:
                 point = series[name].get(value)
                 if point is None:
                     cells_.append("-")
-                elif point[2] > 1:
-                    cells_.append(
-                        f"{100 * point[0]:.1f} +/- {100 * point[1]:.1f} % ({point[2]} seeds)"
-                    )
+                elif point[2]:
+                    seeds = f"{point[2]} seed" + ("s" if point[2] > 1 else "")
+                    cells_.append(f"{100 * point[0]:.1f} +/- {100 * point[1]:.1f} % ({seeds})")
                 else:
                     cells_.append(f"{100 * point[0]:.1f} +/- {100 * point[1]:.1f} %")
             lines.append(f"| {value} | " + " | ".join(cells_) + " |")
