@@ -187,7 +187,7 @@ class WarmStartProgress:
     """A DAgger warm start's finished waves in ``folder``: each wave's states, labels and
     returns (``wave_K.npz``, written once), and after each wave the actor, the critic, the
     random generators and the records (``state.pt``, replaced whole), so that a run stopped
-    mid-warm-start continues where it was.  The waves' data (about 100 MB a wave for 256
+    mid-warm-start continues where it was.  The waves' data (about 25 MB a wave for 256
     insertion environments) is deleted once the last wave is fitted; ``state.pt`` (the size of
     a checkpoint) stays, so that a run stopped before PPO's first checkpoint starts PPO from the
     finished warm start."""
