@@ -456,6 +456,16 @@ def xvfb(tmp_path):
             f"{log.read_text(errors='replace')}"
         )
         time.sleep(0.2)
+    # GLFW (the viewer's window library) on this display, in a process of its own: where it
+    # cannot start on a display that answers, the machine lacks what a window needs; skip with
+    # GLFW's reason, as where Xvfb is missing
+    probe = subprocess.run(
+        [sys.executable, "-c", "from wirecraft.envs.env import check_display; check_display()"],
+        env={**os.environ, "DISPLAY": display}, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    if probe.returncode != 0:
+        proc.terminate()
+        pytest.skip(f"GLFW cannot open a window on Xvfb {display}: {probe.stderr[-600:]}")
     yield display
     proc.terminate()
     proc.wait(timeout=10)
