@@ -255,7 +255,7 @@ def test_a_saved_warm_start_with_other_settings_is_refused(tmp_path):
 
     WarmStartProgress(tmp_path, [1.0, 0.0], 3).save(
         _FakeRunner(), np.random.default_rng(0), [{"wave": 0}], np.zeros((1, 2)), np.zeros((1, 1)),
-        np.zeros(1), done=False,
+        np.zeros(1),
     )  # fmt: skip
     assert torch.load(tmp_path / "state.pt", weights_only=False)["history"] == [{"wave": 0}]
     with pytest.raises(ValueError, match="holds a warm start with"):

@@ -22,7 +22,6 @@ behaviour-cloning loss).
 from __future__ import annotations
 
 import contextlib
-import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -133,10 +132,11 @@ def dagger_init(
     waves = [0.5**k for k in range(iterations)] + [0.0]  # the last: the actor alone
     saved = WarmStartProgress(save_dir, waves, seed) if save_dir is not None else None
     states, labels, returns, history = saved.load(runner, rng) if saved else ([], [], [], [])
-    bar = tqdm(waves, desc="DAgger warm start", disable=not progress, initial=len(history))
-    for k, beta in enumerate(waves):
-        if k < len(history):
-            continue
+    bar = tqdm(
+        total=len(waves), desc="DAgger warm start", disable=not progress, initial=len(history)
+    )
+    for k in range(len(history), len(waves)):
+        beta = waves[k]
         actor.eval()
         wave = run_wave(venv, expert, actor, obs_groups, beta, seed + k, rng)
         # float32: what the fits see (and what a resumed warm start must see too)
@@ -175,7 +175,7 @@ def dagger_init(
             record["critic_loss"] = losses["critic"]
         history.append(record)
         if saved:
-            saved.save(runner, rng, history, states[-1], labels[-1], returns[-1], done=last)
+            saved.save(runner, rng, history, states[-1], labels[-1], returns[-1])
         bar.update()
         if progress:
             tqdm.write(f"DAgger wave {k}: {record}")
@@ -213,23 +213,25 @@ class WarmStartProgress:
         history = saved["history"]
         if len(history) == len(self.settings["waves"]):
             return [], [], [], history  # finished: the fits need no data
-        data = [np.load(self.folder / f"wave_{k}.npz") for k in range(len(history))]
-        return (
-            [d["states"] for d in data],
-            [d["labels"] for d in data],
-            [d["returns"] for d in data],
-            history,
-        )
+        data: dict[str, list] = {"states": [], "labels": [], "returns": []}
+        for k in range(len(history)):
+            with np.load(self.folder / f"wave_{k}.npz") as wave:
+                for name, arrays in data.items():
+                    arrays.append(wave[name])
+        return data["states"], data["labels"], data["returns"], history
 
-    def save(self, runner, rng, history, states, labels, returns, *, done: bool) -> None:
+    def save(self, runner, rng, history, states, labels, returns) -> None:
+        """Save the wave that ``history``'s last record describes (its data, unless it is the
+        last wave) and the state after it."""
         import torch
 
-        self.folder.mkdir(parents=True, exist_ok=True)
+        from wirecraft.cli_args import atomic_path
+
         k = len(history) - 1
+        done = len(history) == len(self.settings["waves"])
         if not done:
-            partial = self.folder / f"wave_{k}.partial.npz"
-            np.savez(partial, states=states, labels=labels, returns=returns)
-            os.replace(partial, self.folder / f"wave_{k}.npz")
+            with atomic_path(self.folder / f"wave_{k}.npz") as tmp:
+                np.savez(tmp, states=states, labels=labels, returns=returns)
         state = {
             "settings": self.settings,
             "history": history,
@@ -238,9 +240,8 @@ class WarmStartProgress:
             "numpy_rng": rng.bit_generator.state,
             "torch_rng": torch.get_rng_state(),
         }
-        partial = self.folder / "state.partial.pt"
-        torch.save(state, partial)
-        os.replace(partial, self.folder / "state.pt")
+        with atomic_path(self.folder / "state.pt") as tmp:
+            torch.save(state, tmp)
         if done:
             for wave in self.folder.glob("wave_*.npz"):
                 wave.unlink()
