@@ -15,7 +15,9 @@ episode:
 - ``state``: the largest gap between the environment's ``observation.state`` and the dataset's,
   and ``image``: the mean gap of the side camera's pixels (0-1; the dataset's video is lossy);
 - ``fit``: the policy's error on the frame's joint targets (largest over the arm's joints, rad),
-  median and max over the frames, from the dataset's frames and from the environment's.
+  median and max over the frames, from the dataset's frames and from the environment's; for a
+  dataset collected with ``--action env``, on the frame's environment actions (largest over
+  all of them, in the actions' units: 1 = a full step's command).
 
 Equal ``fit`` from both sources, with small ``state`` and ``image`` gaps, says the evaluation
 feeds the policy what it was trained on; then the ``fit`` itself says whether the policy has
@@ -67,6 +69,9 @@ def main() -> None:
         **settings["env_kwargs"],
     ).unwrapped
     dof, k = env.robot.dof, steps_per_frame(settings["fps"])
+    env_actions = settings.get("action", "joint") == "env"
+    compared = slice(None) if env_actions else slice(0, dof)
+    unit = "action units" if env_actions else "rad"
 
     def predict(state, side, wrist) -> np.ndarray:
         batch = {
@@ -95,20 +100,20 @@ def main() -> None:
             state_gap.append(float(np.abs(state - frame["observation.state"].numpy()).max()))
             image_gap.append(float((side - frame["observation.images.cam_side"]).abs().mean()))
             if j % args.every == 0:
-                target = frame["action"].numpy()[:dof]
+                target = frame["action"].numpy()[compared]
                 recorded = predict(
                     frame["observation.state"].numpy(),
                     frame["observation.images.cam_side"],
                     frame["observation.images.cam_wrist"],
                 )
                 live = predict(state, side, wrist)
-                fit_dataset.append(float(np.abs(recorded[:dof] - target).max()))
-                fit_env.append(float(np.abs(live[:dof] - target).max()))
+                fit_dataset.append(float(np.abs(recorded[compared] - target).max()))
+                fit_env.append(float(np.abs(live[compared] - target).max()))
             for action in frame["action.env"].numpy().reshape(k, -1):
                 obs, *_ = env.step(action)
         print(
             f"episode {index} ({len(frames)} frames): state {max(state_gap):.1e}, image "
-            f"{np.mean(image_gap):.3f}; fit (rad) from the dataset median "
+            f"{np.mean(image_gap):.3f}; fit ({unit}) from the dataset median "
             f"{np.median(fit_dataset):.3f} max {max(fit_dataset):.3f}, from the environment "
             f"median {np.median(fit_env):.3f} max {max(fit_env):.3f}"
         )

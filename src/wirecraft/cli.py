@@ -583,6 +583,14 @@ def _collect_args(p):
         help="who demonstrates: the task's scripted expert (default) or its reactive expert "
         "(no memory: the action is a function of the state)",
     )
+    p.add_argument(
+        "--action",
+        choices=("joint", "env"),
+        default="joint",
+        help="what a frame's `action` holds: joint, the arm's joint targets and the gripper "
+        "gap (default); env, the frame's 60 / fps environment actions in the control mode "
+        "(action.env as float32; the joint targets then go to action.joint)",
+    )
     p.add_argument("--keep-failures", action="store_true", help="also save failed episodes")
     p.add_argument("--resume", action="store_true", help="continue the dataset in --out")
     p.add_argument(
@@ -693,6 +701,7 @@ def cmd_collect(args) -> int:
         success_hold_s=0.5 if args.success_hold is None else args.success_hold,
         vcodec=args.vcodec,
         expert=args.expert or "scripted",
+        action=args.action,
     )
     report = collect(
         settings,
@@ -734,6 +743,7 @@ def collect_rollouts(args) -> int:
             seed=args.seed,
             fps=args.fps,
             image_size=args.image_size,
+            action=args.action,
         )
     except ValueError as err:
         raise usage_error("--policy", str(err)) from None

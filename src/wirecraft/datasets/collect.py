@@ -10,7 +10,8 @@
   last state (and it did not diverge).  Failed episodes are dropped unless ``keep_failures``;
   attempts continue until ``episodes`` are saved or ``max_attempts`` were made.
 - Frames and actions follow ``EpisodeRecorder`` (fps a divisor of 60; the action of a frame is
-  the joint targets after the last control step of its period).
+  the joint targets after the last control step of its period, or with ``action="env"`` the
+  period's environment actions).
 - Workers: ``workers = 0`` runs in this process; ``N >= 1`` starts N processes (spawn); with
   ``ray_address`` (``"local"``: a local Ray instance with ``workers`` CPUs) Ray tasks generate
   the episodes.  This process is the only writer (``EpisodeWriter``).  Each task is a run of
@@ -73,6 +74,7 @@ class CollectSettings:
     success_hold_s: float = 0.5
     vcodec: str = "h264"  # a key of writer.VIDEO_CODECS
     expert: str = "scripted"  # a name of wirecraft.experts.DEMONSTRATORS
+    action: str = "joint"  # what a frame's ``action`` holds (schema.ACTION_KINDS)
 
     def __post_init__(self) -> None:
         import wirecraft
@@ -97,6 +99,7 @@ class CollectSettings:
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
         steps_per_frame(self.fps)
+        schema.check_action_kind(self.action)
         from wirecraft.datasets.writer import VIDEO_CODECS
 
         if self.vcodec not in VIDEO_CODECS:
@@ -167,7 +170,7 @@ def _episode_tools(settings: CollectSettings):
         env = wirecraft.make(
             settings.task, obs_mode="state", image_size=settings.image_size, **settings.env_kwargs
         )
-        recorder = EpisodeRecorder(env, settings.fps, source="scripted")
+        recorder = EpisodeRecorder(env, settings.fps, source="scripted", action=settings.action)
         _CACHE[key] = (env, recorder, settings.expert_class)
     return _CACHE[key]
 
@@ -271,7 +274,9 @@ def _batch_tools(settings: CollectSettings, slots: int):
         )
         renderer = FastRenderer(venv.model, settings.image_size, settings.image_size)
         recorders = [
-            EpisodeRecorder(env, settings.fps, source="scripted", renderer=renderer)
+            EpisodeRecorder(
+                env, settings.fps, source="scripted", renderer=renderer, action=settings.action
+            )
             for env in venv.envs
         ]
         _BATCH_CACHE[key] = (venv, renderer, recorders)
@@ -471,8 +476,9 @@ def _check_out(settings: CollectSettings, out: Path, resume: bool) -> dict | Non
             )
         stored = json.loads(path.read_text())
         check_state_revision(stored, f"{out} was collected", "refusing to mix them in one dataset")
-        # Datasets from before the expert was a setting were all scripted.
-        diff = _differences({"expert": "scripted", **stored["settings"]}, settings.to_dict())
+        # Datasets from before the expert and the action were settings: scripted, joint targets.
+        before = {"expert": "scripted", "action": "joint"}
+        diff = _differences({**before, **stored["settings"]}, settings.to_dict())
         diff += _differences(stored.get("expert", {}), expert_description(settings))
         if diff:
             raise ValueError(

@@ -9,6 +9,9 @@ steps (2 at 30 fps).  Frame ``j`` covers control steps ``[j * k, (j + 1) * k)``:
   control step of the period (what the robot is being driven to at the next frame);
 - ``action.env`` holds the ``k`` environment actions of the period, in order.
 
+With ``action="env"`` the frame's ``action`` is its ``action.env`` (float32) and the joint
+targets are written as ``action.joint`` (``schema.features_for``).
+
 A period cut short (only a divergence ends an episode between frames) is not recorded.  Any
 policy can drive the environment (scripted expert, RL policy, teleoperation): call ``start``
 after ``reset`` and ``record`` after every ``step``.
@@ -36,6 +39,7 @@ class Episode:
     env_action: np.ndarray  # (T, steps_per_frame * env action dim)
     images: dict[str, np.ndarray]  # camera name (schema.CAMERAS) -> (T, H, W, 3) uint8
     flags: dict[str, np.ndarray]  # success flag -> (T,) bool
+    action_kind: str = "joint"  # what the frames' ``action`` holds (schema.ACTION_KINDS)
     success: bool = False  # the task's success flag at the episode's last state
     control_steps: int = 0  # environment steps taken (recorded or not)
     info: dict = field(default_factory=dict)  # free-form extras (not written per frame)
@@ -47,16 +51,22 @@ class Episode:
         """The frames as ``LeRobotDataset.add_frame`` dictionaries."""
         source = np.array([schema.source_code(self.source)], dtype=np.int64)
         seed = np.array([self.seed], dtype=np.int64)
+        env_action = self.action_kind == "env"
         for t in range(len(self)):
+            joint_action = self.action[t].astype(np.float32)
             frame = {
                 schema.STATE_KEY: self.state[t].astype(np.float32),
-                schema.ACTION_KEY: self.action[t].astype(np.float32),
+                schema.ACTION_KEY: self.env_action[t].astype(np.float32)
+                if env_action
+                else joint_action,
                 schema.CARTESIAN_KEY: self.cartesian_state[t].astype(np.float32),
                 schema.ENV_ACTION_KEY: self.env_action[t].astype(np.float64),
                 schema.SOURCE_KEY: source,
                 schema.SEED_KEY: seed,
                 "task": self.task,
             }
+            if env_action:
+                frame[schema.JOINT_ACTION_KEY] = joint_action
             for camera, key in schema.CAMERAS.items():
                 frame[key] = self.images[camera][t]
             for flag, values in self.flags.items():
@@ -69,15 +79,19 @@ class EpisodeRecorder:
 
     ``env``: a WireCraft environment (wrapped or not); ``fps``: a divisor of 60; ``renderer``:
     a ``FastRenderer`` of the environment's model and image size to draw with (shared by the
-    recorders of one vector env; its owner closes it), else the recorder makes its own."""
+    recorders of one vector env; its owner closes it), else the recorder makes its own;
+    ``action``: what the frames' ``action`` holds (``schema.ACTION_KINDS``)."""
 
-    def __init__(self, env, fps: int = 30, *, source: str = "scripted", renderer=None):
+    def __init__(
+        self, env, fps: int = 30, *, source: str = "scripted", renderer=None, action="joint"
+    ):
         from wirecraft.envs.env import CONTROL_HZ
 
         self.env = getattr(env, "unwrapped", env)
         if isinstance(fps, bool) or not isinstance(fps, int) or fps < 1 or CONTROL_HZ % fps:
             raise ValueError(f"fps must be a divisor of {CONTROL_HZ}, got {fps!r}")
         schema.source_code(source)
+        self.action_kind = schema.check_action_kind(action)
         self.fps = fps
         self.steps_per_frame = CONTROL_HZ // fps
         self.source = source
@@ -97,6 +111,7 @@ class EpisodeRecorder:
             task=env.task.name,
             control=env.control_name,
             steps_per_frame=self.steps_per_frame,
+            action=self.action_kind,
         )
 
     # -- recording -----------------------------------------------------------------------------
@@ -147,6 +162,7 @@ class EpisodeRecorder:
             env_action=np.asarray(self._env_actions, dtype=np.float64).reshape(n, env_dim),
             images=images,
             flags={k: np.asarray(v[:n], dtype=bool) for k, v in self._flags.items()},
+            action_kind=self.action_kind,
             success=self._last_success,
             control_steps=self._steps,
             info=dict(info or {}),

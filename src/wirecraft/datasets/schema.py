@@ -5,7 +5,9 @@ LeRobot v3 features (``features_for``); every feature is documented in docs/data
 - ``observation.state`` (dof + 1) float32: joint angles (rad) then the gripper pad gap (m)
   (``RobotHandle.dataset_state``);
 - ``action`` (dof + 1) float32: the arm servo targets the controller resolved (IK for the
-  Cartesian modes; rad) then the commanded pad gap (m) (``Controller.dataset_action``);
+  Cartesian modes; rad) then the commanded pad gap (m) (``Controller.dataset_action``); in a
+  dataset of ``action="env"`` it is instead ``action.env`` as float32 (what a policy that
+  commands the environment directly learns), the joint targets moving to ``action.joint``;
 - ``observation.cartesian_state`` (7,) float32: TCP position (m) and orientation quaternion
   ``(qw, qx, qy, qz)`` (MuJoCo's order, scalar first) in the robot base frame;
 - ``observation.images.cam_side`` / ``observation.images.cam_wrist``: RGB videos (H, W, 3);
@@ -30,6 +32,10 @@ STATE_KEY = "observation.state"
 ACTION_KEY = "action"
 CARTESIAN_KEY = "observation.cartesian_state"
 ENV_ACTION_KEY = "action.env"
+JOINT_ACTION_KEY = "action.joint"
+# What a dataset's ``action`` holds: the joint servo targets + pad gap, or the frame's
+# environment actions (``action.env``) in the control mode it was collected with.
+ACTION_KINDS = ("joint", "env")
 SOURCE_KEY = "source"
 SEED_KEY = "seed"
 NO_SEED = -1
@@ -60,6 +66,12 @@ def success_flags(task: str) -> tuple[str, ...]:
     return TASKS.get(task).metrics.success_flags
 
 
+def check_action_kind(action: str) -> str:
+    if action not in ACTION_KINDS:
+        raise ValueError(f"unknown action {action!r}; valid: {', '.join(ACTION_KINDS)}")
+    return action
+
+
 def env_action_dim(robot: str, control: str) -> int:
     """Size of the environment's action for ``robot`` under ``control`` (gripper included)."""
     from wirecraft.assets.robots import ROBOTS
@@ -77,10 +89,12 @@ def features_for(
     task: str,
     control: str = "cartesian",
     steps_per_frame: int = 2,
+    action: str = "joint",
 ) -> dict[str, dict]:
     """LeRobot ``features`` of the WireCraft schema for one robot, task family and control mode.
 
-    ``steps_per_frame``: control steps (60 Hz) per recorded frame (2 at 30 fps)."""
+    ``steps_per_frame``: control steps (60 Hz) per recorded frame (2 at 30 fps); ``action``:
+    what ``action`` holds (``ACTION_KINDS``)."""
     from wirecraft.assets.robots import ROBOTS
 
     dof = ROBOTS.get(robot).dof
@@ -90,18 +104,21 @@ def features_for(
         raise ValueError(f"steps_per_frame must be an integer, got {steps_per_frame!r}")
     if steps_per_frame < 1:
         raise ValueError(f"steps_per_frame must be >= 1, got {steps_per_frame}")
+    check_action_kind(action)
     joints = [f"joint{i + 1}" for i in range(dof)]
     env_dim = env_action_dim(robot, control)
+    joint_action = {"dtype": "float32", "shape": (dof + 1,), "names": [*joints, "gripper_gap"]}
+    env_names = [f"step{s}_{i}" for s in range(steps_per_frame) for i in range(env_dim)]
+    env_shape = (steps_per_frame * env_dim,)
+    env_action = {"dtype": "float32", "shape": env_shape, "names": list(env_names)}
     features: dict[str, dict] = {
         STATE_KEY: {"dtype": "float32", "shape": (dof + 1,), "names": [*joints, "gripper_opening"]},
-        ACTION_KEY: {"dtype": "float32", "shape": (dof + 1,), "names": [*joints, "gripper_gap"]},
+        ACTION_KEY: joint_action if action == "joint" else env_action,
         CARTESIAN_KEY: {"dtype": "float32", "shape": (7,), "names": list(CARTESIAN_NAMES)},
-        ENV_ACTION_KEY: {
-            "dtype": "float64",
-            "shape": (steps_per_frame * env_dim,),
-            "names": [f"step{s}_{i}" for s in range(steps_per_frame) for i in range(env_dim)],
-        },
+        ENV_ACTION_KEY: {"dtype": "float64", "shape": env_shape, "names": env_names},
     }
+    if action == "env":
+        features[JOINT_ACTION_KEY] = joint_action
     for camera_key in CAMERAS.values():
         features[camera_key] = {
             "dtype": "video",

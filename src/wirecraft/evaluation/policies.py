@@ -160,33 +160,46 @@ class RandomPolicy:
 
 
 class DatasetActionPolicy:
-    """Drives ``joint``-controlled environments with dataset actions at the dataset's frame
-    rate (the base of ``LeRobotPolicy``).
+    """Drives environments with dataset actions at the dataset's frame rate (the base of
+    ``LeRobotPolicy``).
 
     A dataset records one frame every ``k = CONTROL_HZ / fps`` control steps
     (``wirecraft.datasets.recorder``): frame ``j``'s observation is the state after control
-    step ``j k`` (after ``reset`` for frame 0), its action the absolute servo targets (rad) +
-    pad gap (m) the robot is driven to during control steps ``[j k, (j + 1) k)``.  ``act`` is
-    called at every control step; at a frame boundary (every ``k``-th call since ``reset``) it
-    asks ``frame_actions(obs)`` for the next frame's actions, and on each of the ``k`` steps it
-    turns them into ``joint`` actions with ``joint_action`` (a target further than a step's
-    rated motion is approached over the frame's steps).  The observations between frame
-    boundaries are not read."""
+    step ``j k`` (after ``reset`` for frame 0); its action covers control steps
+    ``[j k, (j + 1) k)``.  ``act`` is called at every control step; at a frame boundary (every
+    ``k``-th call since ``reset``) it asks ``frame_actions(obs)`` for the next frame's actions.
+    The observations between frame boundaries are not read.  ``action`` says what a frame's
+    action is (``schema.ACTION_KINDS``):
 
-    control = "joint"
+    - ``joint``: the absolute servo targets (rad) + pad gap (m) the robot is driven to during
+      the frame; the environments run ``joint`` control, and on each of the ``k`` steps the
+      targets become ``joint`` actions through ``joint_action`` (a target further than a
+      step's rated motion is approached over the frame's steps);
+    - ``env``: the frame's ``k`` environment actions (``k * a`` values, ``a`` the environments'
+      action size), step ``s`` of the frame playing values ``[s a, (s + 1) a)`` clipped to
+      [-1, 1], in whatever control mode the environments run."""
 
-    def __init__(self, env, fps: float) -> None:
+    def __init__(self, env, fps: float, action: str = "joint") -> None:
         self.envs = unwrap_envs(env)
         self.fps = fps
         from wirecraft.envs.env import steps_per_frame
 
+        self.action_kind = schema.check_action_kind(action)
+        self.control = "joint" if action == "joint" else self.envs[0].controller.name
         self.steps_per_frame = steps_per_frame(fps)
         self._step = 0
         self._targets: np.ndarray | None = None
 
     def frame_actions(self, obs) -> np.ndarray:
-        """(N, dof + 1) dataset actions for the frame starting at observation ``obs``."""
+        """(N, dof + 1) joint targets, or (N, k * a) environment actions, for the frame
+        starting at observation ``obs``."""
         raise NotImplementedError
+
+    def frame_width(self) -> int:
+        """The number of values in one frame's action."""
+        if self.action_kind == "joint":
+            return self.envs[0].robot.dof + 1
+        return self.steps_per_frame * self.envs[0].action_space.shape[0]
 
     def reset(self, env_ids=None) -> None:
         # One frame clock for the whole batch: the protocol resets every environment together.
@@ -195,10 +208,21 @@ class DatasetActionPolicy:
         self._targets = None
 
     def act(self, obs) -> np.ndarray:
-        if self._targets is None or self._step % self.steps_per_frame == 0:
+        step_in_frame = self._step % self.steps_per_frame
+        if self._targets is None or step_in_frame == 0:
             targets = np.asarray(self.frame_actions(obs), dtype=float)
-            self._targets = targets.reshape(len(self.envs), -1)
+            width = self.frame_width()
+            if targets.size != len(self.envs) * width:
+                raise ValueError(
+                    f"a frame's {self.action_kind} action has {width} values per environment "
+                    f"here; the policy gave shape {targets.shape} for {len(self.envs)}"
+                )
+            self._targets = targets.reshape(len(self.envs), width)
         self._step += 1
+        if self.action_kind == "env":
+            a = self.envs[0].action_space.shape[0]
+            part = self._targets[:, step_in_frame * a : (step_in_frame + 1) * a]
+            return np.clip(part, -1.0, 1.0)
         rows = zip(self.envs, self._targets, strict=True)
         return np.stack([joint_action(env, row) for env, row in rows])
 
@@ -210,9 +234,11 @@ class LeRobotPolicy(DatasetActionPolicy):
     ``observation.state`` = arm joint positions + gripper opening (the first dof + 1 entries of
     ``proprio``), ``observation.images.cam_side`` / ``cam_wrist`` = ``rgb_side`` /
     ``rgb_wrist`` (channels first, floats in [0, 1]), ``task`` = the instruction.  The policy's
-    action is the dataset action: absolute arm joint targets (rad) + gripper opening (m), which
-    the adapter turns into ``joint``-control actions (per-step target deltas over the joints'
-    rated step, clipped to [-1, 1]; gripper command = 1 - 2 opening / max opening).
+    action is the dataset action (``checkpoint_action``): absolute arm joint targets (rad) +
+    gripper opening (m), which the adapter turns into ``joint``-control actions (per-step
+    target deltas over the joints' rated step, clipped to [-1, 1]; gripper command = 1 - 2
+    opening / max opening); or, for a policy trained on a dataset collected with ``--action
+    env``, the frame's environment actions in the control mode the checkpoint names.
 
     The policy runs at the frame rate of the dataset it was trained on (``DatasetActionPolicy``):
     queried once per frame, on the observation the dataset recorder would have sampled, each
@@ -233,19 +259,31 @@ class LeRobotPolicy(DatasetActionPolicy):
                     "is on this machine, nor an env with an fps): pass it explicitly, "
                     "fps=... (wirecraft eval --fps N; the dataset's meta/info.json has it)"
                 )
-        super().__init__(env, fps)
+        action, control = checkpoint_action(path)
+        super().__init__(env, fps, action)
         import torch
         from lerobot.configs.policies import PreTrainedConfig
         from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
         self.torch = torch
         for e in self.envs:
-            if e.controller.name != "joint":
-                raise ValueError("a LeRobot policy needs environments with control='joint'")
+            if e.controller.name != control:
+                raise ValueError(
+                    f"this LeRobot policy's actions are {action} actions under control="
+                    f"{control!r}: it needs environments with control={control!r}, got "
+                    f"{e.controller.name!r}"
+                )
             if e.obs_mode != "state_rgb":
                 raise ValueError("a LeRobot policy needs environments with obs_mode='state_rgb'")
         path = str(path)
         config = PreTrainedConfig.from_pretrained(path)
+        output = (config.output_features or {}).get("action")
+        if output is not None and tuple(output.shape) != (self.frame_width(),):
+            raise ValueError(
+                f"{path}: the policy's action has shape {tuple(output.shape)}; {action} "
+                f"actions at {fps} frames/s in these environments have {self.frame_width()} "
+                "values (was it trained on a dataset of another robot, control or frame rate?)"
+            )
         config.device = device
         self.policy = get_policy_class(config.type).from_pretrained(path, config=config)
         self.policy.eval()
@@ -298,6 +336,26 @@ class LeRobotPolicy(DatasetActionPolicy):
         with self.torch.inference_mode():
             action = self.post(self.policy.select_action(self.pre(self._batch(obs))))
         return np.asarray(action.detach().cpu().numpy(), dtype=float)
+
+
+def checkpoint_action(path: str | Path) -> tuple[str, str]:
+    """(what the LeRobot checkpoint's action is, the control mode it needs): ("joint",
+    "joint"), or ("env", control) for a policy trained on environment actions.
+    ``wirecraft train`` records that in the training config's environment (the LeRobot
+    plug-in's ``action_type`` and ``control``), saved next to each checkpoint."""
+    try:
+        config = json.loads((Path(path) / TRAIN_CONFIG).read_text())
+    except (OSError, json.JSONDecodeError):
+        return "joint", "joint"
+    env = config.get("env") if isinstance(config, dict) else None
+    if not isinstance(env, dict) or env.get("action_type") != "env":
+        return "joint", "joint"
+    if not env.get("control"):
+        raise ValueError(
+            f"{path}: {TRAIN_CONFIG} says the policy outputs environment actions but names "
+            "no control mode (env.control)"
+        )
+    return "env", str(env["control"])
 
 
 def checkpoint_fps(path: str | Path) -> float | None:
@@ -456,7 +514,8 @@ def policy_env_kwargs(spec, task: str) -> dict[str, Any]:
         return _rl_env_kwargs(rl)
     config = _lerobot_config(path)
     if config is not None:
-        kwargs: dict[str, Any] = {"control": "joint", "obs_mode": "state_rgb"}
+        _, control = checkpoint_action(path)
+        kwargs: dict[str, Any] = {"control": control, "obs_mode": "state_rgb"}
         for key, feature in (config.get("input_features") or {}).items():
             if key.startswith("observation.images.") and feature.get("shape"):
                 kwargs["image_size"] = int(feature["shape"][-1])
@@ -541,6 +600,7 @@ __all__ = [
     "ReactivePolicy",
     "ScriptedPolicy",
     "ZeroPolicy",
+    "checkpoint_action",
     "checkpoint_fps",
     "joint_action",
     "load_policy",

@@ -169,11 +169,21 @@ def env_args(info: dict, collect: dict) -> list[str]:
     fields = {f.name for f in dataclasses.fields(cls)}
     args = [f"--env.type={env_type}", f"--env.fps={info['fps']}"]
     args.append(f"--env.image_size={settings['image_size']}")
-    for key, value in sorted(settings.get("env_kwargs", {}).items()):
-        # The expert's control mode is not the policy's (dataset actions are joint targets).
+    env_kwargs = settings.get("env_kwargs", {})
+    for key, value in sorted(env_kwargs.items()):
+        # The control mode is the policy's action's (below), not necessarily the expert's.
         if key in fields and key != "control" and value is not None:
             args.append(f"--env.{key}={value}")
+    if dataset_action(collect) == "env":
+        # The policy commands the environment in the dataset's control mode; the plug-in's
+        # default action type is the joint targets.
+        args += ["--env.action_type=env", f"--env.control={env_kwargs['control']}"]
     return args
+
+
+def dataset_action(collect: dict) -> str:
+    """What the dataset's ``action`` holds (``schema.ACTION_KINDS``; older datasets: joint)."""
+    return collect.get("settings", {}).get("action", "joint")
 
 
 # -- options ------------------------------------------------------------------------------------
@@ -465,6 +475,7 @@ def fresh_command(
         dataset_episodes=info.get("total_episodes"),
         dataset_frames=info.get("total_frames"),
         fps=info.get("fps"),
+        action=dataset_action(collect),
         preset=preset,
         policy=policy,
         steps=steps,

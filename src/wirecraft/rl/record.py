@@ -24,10 +24,12 @@ def record_rollouts(
     image_size: int | None = None,
     episode_seconds: float | None = None,
     progress: bool = True,
+    action: str = "joint",
 ) -> dict:
     """Run the policy of ``policy_path`` (a run directory or checkpoint) for ``episodes``
     episodes (reset seeds ``seed``, ``seed + 1``, ...) and write them to a new dataset at
-    ``out``.  Returns {"episodes" (written), "frames", "successes"}."""
+    ``out`` whose ``action`` is ``action`` (``schema.ACTION_KINDS``).  Returns {"episodes"
+    (written), "frames", "successes"}."""
     from tqdm import tqdm
 
     import wirecraft
@@ -49,7 +51,7 @@ def record_rollouts(
         env_kwargs["episode_seconds"] = episode_seconds
     env = wirecraft.make(run["task"], **env_kwargs)
     policy = load_policy(policy_path, env)
-    recorder = EpisodeRecorder(env, fps, source="rl")
+    recorder = EpisodeRecorder(env, fps, source="rl", action=action)
     writer = EpisodeWriter.create(
         Path(out), recorder.features(), fps, robot_type=env.unwrapped.robot_name
     )
