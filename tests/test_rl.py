@@ -384,7 +384,9 @@ def test_ppo_trains_saves_loads_and_resumes(tmp_path):
     assert len(result["episodes"]) == 2
     assert set(result["metrics"]) >= {"success", "reach_success", "insert_success"}
 
-    # resume: iterations 2 and 3 follow the saved ones, normalizer statistics carry over
+    # resume: iterations 2 and 3 follow the saved ones, normalizer statistics carry over; a
+    # row logged after the last checkpoint (a run killed between checkpoints) is redone
+    ProgressTable(run_dir / "progress.csv").append({"iteration": 2, "wall_time_s": -1.0})
     train("ppo", "insertion", None, run_dir, steps=96, resume=True, progress=False)
     run = json.loads((run_dir / RUN_FILE).read_text())
     assert run["iterations_done"] == 4 and run["env_steps"] == 96
@@ -392,6 +394,7 @@ def test_ppo_trains_saves_loads_and_resumes(tmp_path):
     rows = ProgressTable(run_dir / "progress.csv").rows()
     assert [r["iteration"] for r in rows] == [0, 1, 2, 3]
     assert [r["env_steps"] for r in rows] == [24, 48, 72, 96]
+    assert min(r["wall_time_s"] for r in rows) >= 0
     first = torch.load(run_dir / "checkpoints/model_1.pt", weights_only=False)
     later = torch.load(run_dir / "checkpoints/model_3.pt", weights_only=False)
     assert later["iter"] == 3
@@ -522,15 +525,13 @@ def test_sacfd_trains_with_demonstrations_saves_loads_and_resumes(tmp_path):
     np.testing.assert_allclose(policy.act(obs), expected, atol=1e-5)
     assert "entropy" in saved  # the learned temperature is checkpointed
 
+    table = ProgressTable(run_dir / "progress.csv")
+    table.append({"iteration": 15, "env_steps": 30, "wall_time_s": -1.0})  # after the checkpoint
     train("sacfd", "insertion", None, run_dir, steps=40, resume=True, progress=False)
     run = json.loads((run_dir / RUN_FILE).read_text())
     assert run["env_steps"] == 40 and run["latest_checkpoint"] == "checkpoints/agent_20.pt"
-    assert [r["env_steps"] for r in ProgressTable(run_dir / "progress.csv").rows()] == [
-        10,
-        20,
-        30,
-        40,
-    ]
+    assert [r["env_steps"] for r in table.rows()] == [10, 20, 30, 40]
+    assert min(r["wall_time_s"] for r in table.rows()) >= 0
 
 
 VISION_TINY = {

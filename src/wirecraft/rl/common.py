@@ -244,6 +244,20 @@ class ProgressTable:
                 writer.writeheader()
             writer.writerow({k: _fmt(row.get(k, "")) for k in PROGRESS_FIELDS})
 
+    def drop_from(self, iteration: int) -> None:
+        """Forget the rows of ``iteration`` and later: a run resumed from a checkpoint redoes
+        them, and its curve must not hold both tries."""
+        if not self.path.exists():
+            return
+        from wirecraft.cli_args import atomic_path
+
+        with self.path.open(newline="") as f:
+            rows = [r for r in csv.DictReader(f) if float(r["iteration"]) < iteration]
+        with atomic_path(self.path) as tmp, tmp.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=PROGRESS_FIELDS, extrasaction="ignore")
+            writer.writeheader()
+            writer.writerows(rows)
+
     def rows(self) -> list[dict[str, float]]:
         if not self.path.exists():
             return []

@@ -323,6 +323,9 @@ def resume(runner, checkpoint: Path) -> dict:
     is the one after the saved one."""
     infos = runner.load(str(checkpoint), map_location="cpu") or {}
     runner.current_learning_iteration = int(infos.get("iterations_done", 0))
+    ProgressTable(Path(runner.logger.log_dir) / "progress.csv").drop_from(
+        runner.current_learning_iteration
+    )
     return infos
 
 

@@ -399,6 +399,7 @@ def train_sacfd(
     agent.enable_training_mode(True)
 
     table = ProgressTable(run_dir / "progress.csv")
+    table.drop_from(start + 1)  # rows are numbered by vector steps done
     tracker = EpisodeTracker(n)
     records: list[dict] = []
     log_every = max(1, math.ceil(cfg.log_every_steps / n))
