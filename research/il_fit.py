@@ -16,8 +16,9 @@ episode:
   and ``image``: the mean gap of the side camera's pixels (0-1; the dataset's video is lossy);
 - ``fit``: the policy's error on the frame's joint targets (largest over the arm's joints, rad),
   median and max over the frames, from the dataset's frames and from the environment's; for a
-  dataset collected with ``--action env``, on the frame's environment actions (largest over
-  all of them, in the actions' units: 1 = a full step's command).
+  dataset collected with ``--action env``, on the arm part of the frame's environment actions
+  (largest over them, in the actions' units: 1 = a full step's command; the gripper command
+  left out, as the gripper gap is from the joint targets).
 
 Equal ``fit`` from both sources, with small ``state`` and ``image`` gaps, says the evaluation
 feeds the policy what it was trained on; then the ``fit`` itself says whether the policy has
@@ -70,7 +71,9 @@ def main() -> None:
     ).unwrapped
     dof, k = env.robot.dof, steps_per_frame(settings["fps"])
     env_actions = settings.get("action", "joint") == "env"
-    compared = slice(None) if env_actions else slice(0, dof)
+    width = env.action_space.shape[0]
+    # The arm's entries: the joints of the joint targets, or each control step's arm command.
+    arm = np.arange(k * width) % width < width - 1 if env_actions else np.arange(dof + 1) < dof
     unit = "action units" if env_actions else "rad"
 
     def predict(state, side, wrist) -> np.ndarray:
@@ -100,15 +103,15 @@ def main() -> None:
             state_gap.append(float(np.abs(state - frame["observation.state"].numpy()).max()))
             image_gap.append(float((side - frame["observation.images.cam_side"]).abs().mean()))
             if j % args.every == 0:
-                target = frame["action"].numpy()[compared]
+                target = frame["action"].numpy()[arm]
                 recorded = predict(
                     frame["observation.state"].numpy(),
                     frame["observation.images.cam_side"],
                     frame["observation.images.cam_wrist"],
                 )
                 live = predict(state, side, wrist)
-                fit_dataset.append(float(np.abs(recorded[compared] - target).max()))
-                fit_env.append(float(np.abs(live[compared] - target).max()))
+                fit_dataset.append(float(np.abs(recorded[arm] - target).max()))
+                fit_env.append(float(np.abs(live[arm] - target).max()))
             for action in frame["action.env"].numpy().reshape(k, -1):
                 obs, *_ = env.step(action)
         print(
