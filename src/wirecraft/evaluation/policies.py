@@ -187,6 +187,13 @@ class DatasetActionPolicy:
         self.action_kind = schema.check_action_kind(action)
         self.control = "joint" if action == "joint" else self.envs[0].controller.name
         self.steps_per_frame = steps_per_frame(fps)
+        self.env_action_dim = self.envs[0].action_space.shape[0]
+        # The number of values in one frame's action.
+        self.frame_width = (
+            self.envs[0].robot.dof + 1
+            if action == "joint"
+            else self.steps_per_frame * self.env_action_dim
+        )
         self._step = 0
         self._targets: np.ndarray | None = None
 
@@ -194,12 +201,6 @@ class DatasetActionPolicy:
         """(N, dof + 1) joint targets, or (N, k * a) environment actions, for the frame
         starting at observation ``obs``."""
         raise NotImplementedError
-
-    def frame_width(self) -> int:
-        """The number of values in one frame's action."""
-        if self.action_kind == "joint":
-            return self.envs[0].robot.dof + 1
-        return self.steps_per_frame * self.envs[0].action_space.shape[0]
 
     def reset(self, env_ids=None) -> None:
         # One frame clock for the whole batch: the protocol resets every environment together.
@@ -211,7 +212,7 @@ class DatasetActionPolicy:
         step_in_frame = self._step % self.steps_per_frame
         if self._targets is None or step_in_frame == 0:
             targets = np.asarray(self.frame_actions(obs), dtype=float)
-            width = self.frame_width()
+            width = self.frame_width
             if targets.size != len(self.envs) * width:
                 raise ValueError(
                     f"a frame's {self.action_kind} action has {width} values per environment "
@@ -220,7 +221,7 @@ class DatasetActionPolicy:
             self._targets = targets.reshape(len(self.envs), width)
         self._step += 1
         if self.action_kind == "env":
-            a = self.envs[0].action_space.shape[0]
+            a = self.env_action_dim
             part = self._targets[:, step_in_frame * a : (step_in_frame + 1) * a]
             return np.clip(part, -1.0, 1.0)
         rows = zip(self.envs, self._targets, strict=True)
@@ -278,10 +279,10 @@ class LeRobotPolicy(DatasetActionPolicy):
         path = str(path)
         config = PreTrainedConfig.from_pretrained(path)
         output = (config.output_features or {}).get("action")
-        if output is not None and tuple(output.shape) != (self.frame_width(),):
+        if output is not None and tuple(output.shape) != (self.frame_width,):
             raise ValueError(
                 f"{path}: the policy's action has shape {tuple(output.shape)}; {action} "
-                f"actions at {fps} frames/s in these environments have {self.frame_width()} "
+                f"actions at {fps} frames/s in these environments have {self.frame_width} "
                 "values (was it trained on a dataset of another robot, control or frame rate?)"
             )
         config.device = device
@@ -338,16 +339,21 @@ class LeRobotPolicy(DatasetActionPolicy):
         return np.asarray(action.detach().cpu().numpy(), dtype=float)
 
 
+def _train_config(path: str | Path) -> dict | None:
+    """The ``train_config.json`` that ``lerobot-train`` writes beside a checkpoint, if readable."""
+    try:
+        config = json.loads((Path(path) / TRAIN_CONFIG).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return config if isinstance(config, dict) else None
+
+
 def checkpoint_action(path: str | Path) -> tuple[str, str]:
     """(what the LeRobot checkpoint's action is, the control mode it needs): ("joint",
     "joint"), or ("env", control) for a policy trained on environment actions.
     ``wirecraft train`` records that in the training config's environment (the LeRobot
     plug-in's ``action_type`` and ``control``), saved next to each checkpoint."""
-    try:
-        config = json.loads((Path(path) / TRAIN_CONFIG).read_text())
-    except (OSError, json.JSONDecodeError):
-        return "joint", "joint"
-    env = config.get("env") if isinstance(config, dict) else None
+    env = (_train_config(path) or {}).get("env")
     if not isinstance(env, dict) or env.get("action_type") != "env":
         return "joint", "joint"
     if not env.get("control"):
@@ -365,12 +371,8 @@ def checkpoint_fps(path: str | Path) -> float | None:
     next to it, whose ``dataset`` names the dataset (``root``, else ``repo_id`` under
     ``$HF_LEROBOT_HOME``): the ``fps`` of that dataset's ``meta/info.json``, when it is on this
     machine; else the training config's ``env.fps``."""
-    train = Path(path) / TRAIN_CONFIG
-    try:
-        config = json.loads(train.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
-    if not isinstance(config, dict):
+    config = _train_config(path)
+    if config is None:
         return None
     dataset = config.get("dataset") or {}
     roots = []
