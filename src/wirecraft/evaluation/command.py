@@ -142,24 +142,29 @@ def configure(p: argparse.ArgumentParser, add_task_args) -> None:
     p.add_argument(
         "--checkpoints",
         default=None,
-        help="with --policy RUN (an imitation run: RUN/checkpoints/NNNNNN/pretrained_model): "
-        "evaluate all, last, or steps N,M,...; one row per checkpoint (default: all)",
+        help="sweep a training run's checkpoints: all, last, or N,M,... (an imitation run's "
+        "training steps, RUN/checkpoints/NNNNNN; an RL run's checkpoint numbers, model_N.pt or "
+        "agent_N.pt); one row per checkpoint (default: all). An imitation run is always swept; "
+        "an RL run only with --checkpoints, --select or --curve (alone, --policy RUN is its "
+        "latest checkpoint)",
     )
     p.add_argument(
         "--select",
         choices=("reference", "validation"),
         default=None,
-        help="with an imitation run: reference = the top 3 of the last 5 checkpoints (or "
-        "--checkpoints) by SR reach on the evaluation seeds; validation = the best on the "
-        "--seed list, scored on the public list",
+        help="sweep and pick a checkpoint: reference = the top 3 of the last 5 checkpoints (or "
+        "--checkpoints) on the evaluation seeds; validation = the best on the --seed list, "
+        "scored on the public list. Best: by SR reach for imitation runs, by success for RL "
+        "runs. With several --policy runs, each is swept and its pick enters the "
+        "mean +/- std across runs",
     )
     p.add_argument(
         "--curve",
         metavar="PNG",
         type=suffixed(".png"),
         default=None,
-        help="with --policy RUN: plot the sweep's learning curve (SR reach / insert against "
-        "training steps)",
+        help="with one --policy RUN: plot the sweep's learning curve (SR reach / insert against "
+        "the checkpoints' training steps or iterations)",
     )
 
 
@@ -251,8 +256,22 @@ def print_across_runs(policies: list[str], across: dict) -> None:
         )
 
 
-def run_across(args, family: str, env_kwargs: dict, evaluate, write_json) -> int:
-    """``--policy A B C``: each evaluated on the same seeds, then aggregated across them."""
+SWEPT = "--policy RUN (a training run folder with checkpoints)"
+
+
+def across_figure(result: dict) -> dict:
+    """A swept run's figure in a comparison across runs: its selection's score (validation)
+    or the mean of its top checkpoints (reference)."""
+    selection = result["selection"]
+    if selection["method"] == "validation":
+        return {"metrics": selection["score"]["metrics"]}
+    return {"metrics": selection["mean_of_top"]}
+
+
+def run_across(args, family: str, env_kwargs: dict, evaluate, evaluate_sweep, write_json) -> int:
+    """``--policy A B C``: each evaluated on the same seeds, then aggregated across them.  With
+    ``--select``, each is a training run whose sweep picks the checkpoint that enters the
+    aggregate."""
     from wirecraft.cli import only_with, usage_error
     from wirecraft.evaluation import sweep as sweep_mod
     from wirecraft.evaluation.policies import BUILTIN_POLICIES
@@ -260,23 +279,42 @@ def run_across(args, family: str, env_kwargs: dict, evaluate, write_json) -> int
 
     policies = args.policy
     one = "one --policy"
-    only_with(args, one, "--traces", "--video", "--report", "--label", "--checkpoints")
-    only_with(args, one, "--select", "--curve")
+    only_with(args, one, "--traces", "--video", "--report", "--label", "--curve")
+    if args.select is None:
+        only_with(args, "--select (several runs)", "--checkpoints")
+    if args.select == "validation" and args.seed is None:
+        raise usage_error("--seed", "--select validation picks on the --seed N list: pass it")
+    swept = {}
     for policy in policies:
         check_policy(args, policy)
-        if policy not in BUILTIN_POLICIES and sweep_mod.is_imitation_run(policy):
+        builtin = policy in BUILTIN_POLICIES
+        run = None if builtin else sweep_mod.swept_run(policy, args.select is not None)
+        if args.select is not None and run is None:
+            raise usage_error("--select", f"{policy} is not {SWEPT}")
+        if args.select is None and not builtin and sweep_mod.is_imitation_run(policy):
             raise usage_error(
-                "--policy", f"{policy} is an imitation run (a checkpoint sweep); give checkpoints"
+                "--policy",
+                f"{policy} is an imitation run (a checkpoint sweep); give checkpoints, or "
+                "--select to pick one in each run",
             )
+        swept[policy] = run
     if len(set(policies)) != len(policies):
         raise usage_error("--policy", f"a policy is given twice: {policies}")
     start = time.time()
-    payloads = []
+    runs, figures = [], []
     for policy in policies:
-        payload = evaluate(policy)
-        print_summary(payload, time.time() - start)
-        payloads.append(payload)
-    across = aggregate_runs(payloads)
+        if swept[policy] is None:
+            payload = evaluate(policy)
+            print_summary(payload, time.time() - start)
+            runs.append(payload)
+            figures.append(payload)
+        else:
+            result = evaluate_sweep(policy, swept[policy])
+            print(f"{policy}:")
+            sweep_mod.print_sweep(result)
+            runs.append(result)
+            figures.append(across_figure(result))
+    across = aggregate_runs(figures)
     print_across_runs(policies, across)
     write_json(
         args.json,
@@ -284,8 +322,9 @@ def run_across(args, family: str, env_kwargs: dict, evaluate, write_json) -> int
             "task": family,
             "env_kwargs": env_kwargs,
             "policies": list(policies),
+            "select": args.select,
             "across_runs": across,
-            "runs": payloads,
+            "runs": runs,
         },
     )
     return 0
@@ -308,12 +347,13 @@ def run(args, task_kwargs, write_json) -> int:
         only_with(args, "--backend warp", "--warp-device")
     policies = args.policy
     args.policy = policies[0]
-    run_dir = args.policy not in BUILT_IN_POLICIES and sweep_mod.is_imitation_run(args.policy)
-    if not run_dir:
-        only_with(args, "--policy RUN (an imitation run folder with checkpoints/)", "--checkpoints")
-        only_with(args, "--policy RUN (an imitation run folder with checkpoints/)", "--select")
-        only_with(args, "--policy RUN (an imitation run folder with checkpoints/)", "--curve")
-    else:
+    sweep_flags = any(v is not None for v in (args.checkpoints, args.select, args.curve))
+    swept = None
+    if len(policies) == 1 and args.policy not in BUILT_IN_POLICIES:
+        swept = sweep_mod.swept_run(args.policy, sweep_flags)
+    if len(policies) == 1 and swept is None:
+        only_with(args, SWEPT, "--checkpoints", "--select", "--curve")
+    elif swept is not None:
         only_with(
             args, "one checkpoint (not a sweep)", "--traces", "--video", "--report", "--label"
         )
@@ -369,28 +409,36 @@ def run(args, task_kwargs, write_json) -> int:
             **env_kwargs,
         )
 
-    if len(policies) > 1:
-        args.policy = policies
-        return run_across(
-            args, family, env_kwargs, lambda policy: evaluation_of(policy).payload, write_json
-        )
-    start = time.time()
-    if run_dir:
-        checkpoints = sweep_mod.choose(
-            sweep_mod.run_checkpoints(args.policy), args.checkpoints, args.select
-        )
+    def evaluate_sweep(policy, run):
+        checkpoints = sweep_mod.choose(run.checkpoints, args.checkpoints, args.select)
 
         def evaluate(path, held_out):
             return evaluation_of(path, held_out).payload
 
-        result = sweep_mod.sweep(evaluate, checkpoints, args.select, args.seed)
+        result = sweep_mod.sweep(evaluate, checkpoints, args.select, args.seed, run.rank_by)
         result.update(
-            policy=str(args.policy),
+            policy=str(policy),
             task=family,
             env_kwargs=env_kwargs,
             seeds=args.seeds,
             episodes_per_seed=args.episodes,
+            step_unit=run.unit,
         )
+        return result
+
+    if len(policies) > 1:
+        args.policy = policies
+        return run_across(
+            args,
+            family,
+            env_kwargs,
+            lambda policy: evaluation_of(policy).payload,
+            evaluate_sweep,
+            write_json,
+        )
+    start = time.time()
+    if swept is not None:
+        result = evaluate_sweep(args.policy, swept)
         sweep_mod.print_sweep(result)
         if args.curve:
             print(f"wrote {sweep_mod.plot_curve(result, args.curve)}")

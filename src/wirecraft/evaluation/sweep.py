@@ -1,23 +1,34 @@
-"""Checkpoint sweeps of an imitation run (``wirecraft eval --policy RUN --checkpoints ...``).
+"""Checkpoint sweeps of a training run (``wirecraft eval --policy RUN --checkpoints ...``).
 
-A run folder written by ``lerobot-train`` (``wirecraft train act|diffusion``) holds
-``checkpoints/NNNNNN/pretrained_model``.  Each chosen checkpoint is evaluated under the protocol
-(``run_evaluation``, the ``LeRobotPolicy`` adapter) and gives one row: SR reach / insert /
-success, mean +/- std over seeds.  Two ways to pick a checkpoint (``--select``):
+Two kinds of run folder are swept:
+
+- an imitation run written by ``lerobot-train`` (``wirecraft train act|diffusion``):
+  ``checkpoints/NNNNNN/pretrained_model``, numbered by training step; always swept;
+- an RL run directory (``wirecraft train ppo|sacfd|vision-ppo``): the checkpoints its
+  ``wirecraft_rl.json`` lists, numbered as the RL library names them (PPO iterations, SAC
+  steps); swept only when ``--checkpoints``, ``--select`` or ``--curve`` is given, since
+  ``--policy RUN`` alone is the run's latest checkpoint.
+
+Each chosen checkpoint is evaluated under the protocol (``run_evaluation``) and gives one row:
+SR reach / insert / success, mean +/- std over seeds.  Two ways to pick a checkpoint
+(``--select``):
 
 - ``reference`` (the reference's method): the 3 best of the last ``REFERENCE_LAST``
-  checkpoints (or those ``--checkpoints`` names) by SR reach on the evaluation seeds, and the
-  mean of their metrics.  Selection and score use the same seeds, so the figure is optimistic.
-- ``validation``: the best checkpoint by SR reach on the validation list derived from
-  ``--seed N`` (seeds.py's held-out stream, disjoint from the public list), then scored on the
-  frozen public list, which the selection never saw (and so comparable with any other policy's
-  public figures).
+  checkpoints (or those ``--checkpoints`` names) on the evaluation seeds, and the mean of
+  their metrics.  Selection and score use the same seeds, so the figure is optimistic.
+- ``validation``: the best checkpoint on the validation list derived from ``--seed N``
+  (seeds.py's held-out stream, disjoint from the public list), then scored on the frozen public
+  list, which the selection never saw (and so comparable with any other policy's public
+  figures).
 
-Ties on SR reach go to the higher SR success, then to the later checkpoint.
+"Best" is by SR reach for imitation runs (the reference's criterion: its policies reach far
+more often than they seat) and by the task's success for RL runs; ties go to the higher
+success, then to the later checkpoint.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from wirecraft.evaluation.policies import LEROBOT_CHECKPOINTS, LEROBOT_MODEL_DIR
@@ -27,8 +38,9 @@ REFERENCE_TOP = 3
 ROW_METRICS = ("reach_success", "insert_success", "success")
 
 
-def run_checkpoints(run: str | Path) -> list[tuple[int, Path]]:
-    """(step, pretrained_model folder) of every numbered checkpoint in ``run``, by step."""
+def imitation_checkpoints(run: str | Path) -> list[tuple[int, Path]]:
+    """(step, pretrained_model folder) of every numbered checkpoint in the LeRobot run
+    ``run``, by step."""
     folder = Path(run) / LEROBOT_CHECKPOINTS
     found = []
     if folder.is_dir():
@@ -44,7 +56,30 @@ def run_checkpoints(run: str | Path) -> list[tuple[int, Path]]:
 
 
 def is_imitation_run(path: str | Path) -> bool:
-    return bool(run_checkpoints(path))
+    return bool(imitation_checkpoints(path))
+
+
+@dataclass(frozen=True)
+class SweptRun:
+    checkpoints: list[tuple[int, Path]]
+    unit: str  # what a checkpoint's number counts
+    rank_by: str  # the metric that "best" means
+
+
+def swept_run(path: str | Path, sweep_flags: bool) -> SweptRun | None:
+    """What a sweep of ``--policy path`` covers, or None when ``path`` is evaluated as one
+    policy: an imitation run is always swept, an RL run directory only when ``sweep_flags``
+    (``--checkpoints``, ``--select`` or ``--curve``) were given."""
+    found = imitation_checkpoints(path)
+    if found:
+        return SweptRun(found, "training steps", "reach_success")
+    if sweep_flags:
+        from wirecraft.rl import run_checkpoints as rl_checkpoints
+
+        found, unit = rl_checkpoints(path)
+        if found:
+            return SweptRun(found, unit, "success")
+    return None
 
 
 def choose(checkpoints: list[tuple[int, Path]], spec: str | None, select: str | None):
@@ -87,10 +122,13 @@ def row(step: int, path: Path, payload: dict, seeds: str) -> dict:
     }
 
 
-def _rank_key(r: dict):
-    m = r["metrics"]
-    reach = m.get("reach_success", m["success"])["mean"]
-    return (reach if reach is not None else -1.0, m["success"]["mean"] or 0.0, r["step"])
+def _rank_key(rank_by: str):
+    def key(r: dict):
+        m = r["metrics"]
+        first = m.get(rank_by, m["success"])["mean"]
+        return (first if first is not None else -1.0, m["success"]["mean"] or 0.0, r["step"])
+
+    return key
 
 
 def mean_of(rows: list[dict]) -> dict:
@@ -100,16 +138,20 @@ def mean_of(rows: list[dict]) -> dict:
     return {n: {"mean": float(np.mean([r["metrics"][n]["mean"] for r in rows]))} for n in names}
 
 
-def sweep(evaluate, checkpoints, select: str | None, seed: int | None) -> dict:
-    """Rows of the chosen checkpoints and the selection.  ``evaluate(path, held_out)`` runs the
-    protocol on one checkpoint (``held_out``: the ``--seed`` list, or None: the public list)."""
+def sweep(
+    evaluate, checkpoints, select: str | None, seed: int | None, rank_by: str = "reach_success"
+) -> dict:
+    """Rows of the chosen checkpoints and the selection (the best by ``rank_by``).
+    ``evaluate(path, held_out)`` runs the protocol on one checkpoint (``held_out``: the
+    ``--seed`` list, or None: the public list)."""
     if select == "validation":
         rows = [row(s, p, evaluate(p, seed), f"validation --seed {seed}") for s, p in checkpoints]
-        best = max(rows, key=_rank_key)
+        best = max(rows, key=_rank_key(rank_by))
         final = row(best["step"], Path(best["path"]), evaluate(Path(best["path"]), None), "public")
         selection = {
             "method": "validation",
             "validation_seed": seed,
+            "ranked_by": rank_by,
             "chosen_step": best["step"],
             "score": final,
         }
@@ -118,9 +160,10 @@ def sweep(evaluate, checkpoints, select: str | None, seed: int | None) -> dict:
     rows = [row(s, p, evaluate(p, seed), which) for s, p in checkpoints]
     if select != "reference":
         return {"checkpoints": rows, "selection": None}
-    top = sorted(rows, key=_rank_key, reverse=True)[:REFERENCE_TOP]
+    top = sorted(rows, key=_rank_key(rank_by), reverse=True)[:REFERENCE_TOP]
     selection = {
         "method": "reference",
+        "ranked_by": rank_by,
         "candidates": [r["step"] for r in rows],
         "top_steps": [r["step"] for r in top],
         "mean_of_top": mean_of(top),
@@ -149,7 +192,7 @@ def plot_curve(result: dict, path: str | Path, title: str = "") -> Path:
         means = [100 * (r["metrics"][name]["mean"] or 0.0) for r in rows]
         stds = [100 * (r["metrics"][name]["std"] or 0.0) for r in rows]
         ax.errorbar(steps, means, yerr=stds, marker="o", capsize=3, label=CURVE_TITLES[name])
-    ax.set_xlabel("training steps")
+    ax.set_xlabel(result.get("step_unit", "training steps"))
     ax.set_ylabel("% of episodes (mean +/- std over seeds)")
     ax.set_ylim(-2, 102)
     ax.grid(alpha=0.3)
@@ -180,7 +223,10 @@ def print_sweep(result: dict) -> None:
         means = ", ".join(
             f"{n} {_pct(v['mean']).strip()} %" for n, v in selection["mean_of_top"].items()
         )
-        print(f"reference selection: top {selection['top_steps']} by SR reach; mean {means}")
+        print(
+            f"reference selection: top {selection['top_steps']} by "
+            f"{CURVE_TITLES[selection['ranked_by']]}; mean {means}"
+        )
     elif selection:
         score = selection["score"]["metrics"]
         means = ", ".join(
@@ -188,6 +234,7 @@ def print_sweep(result: dict) -> None:
             for n, v in score.items()
         )
         print(
-            f"validation selection: step {selection['chosen_step']} (best on --seed "
-            f"{selection['validation_seed']}); public seeds: {means}"
+            f"validation selection: checkpoint {selection['chosen_step']} (best "
+            f"{CURVE_TITLES[selection['ranked_by']]} on --seed {selection['validation_seed']}); "
+            f"public seeds: {means}"
         )
