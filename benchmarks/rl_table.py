@@ -12,7 +12,9 @@ seeds and the held-out list ``--seed 1000``).  ``--evaluate`` measures them agai
 record.  Across the folders of a cell (one per training seed): each folder's mean over its seed
 list, then the mean and population std over the folders (``aggregate_runs``, as ``wirecraft eval
 --policy A B C``).  ``--readme`` writes the table between ``<!-- rl-table -->`` and
-``<!-- /rl-table -->``.  ``--curves`` plots each cell's learning curves, one line per training
+``<!-- /rl-table -->``.  Its checkpoint column says how each folder's checkpoint was chosen:
+the run's last, or the best of the run's checkpoints on a validation list
+(``shipped.selection``).  ``--curves`` plots each cell's learning curves, one line per training
 seed, from the ``progress.csv`` each folder keeps (training episodes' success at the end of the
 episode against env steps; folders without it are named and left out).
 
@@ -66,6 +68,25 @@ def recipe(config: dict) -> str:
         inputs = "goal-relative inputs" if config.get("actor_inputs") == "relative" else "state"
         return f"PPO + DAgger warm start ({inputs})"
     return "PPO (SPEC defaults)"
+
+
+def checkpoint_rule(record: dict) -> str:
+    """How the folder's checkpoint was chosen: the run's last, or the best on a validation list
+    (``shipped.selection``, ``python -m wirecraft.rl.export --selection``)."""
+    chosen = record["shipped"].get("selection")
+    if chosen is None:
+        return "last"
+    return f"best of {len(chosen['candidates'])} on --seed {chosen['validation_seed']}"
+
+
+def checkpoint_column(runs: list) -> str:
+    """Each training seed's checkpoint rule, seeds sharing a rule named together."""
+    by_rule: dict[str, list[str]] = {}
+    for _, record, _ in runs:
+        by_rule.setdefault(checkpoint_rule(record), []).append(str(record["config"].get("seed", 0)))
+    if len(by_rule) == 1:
+        return next(iter(by_rule))
+    return "; ".join(f"{rule} (seed {', '.join(seeds)})" for rule, seeds in by_rule.items())
 
 
 def shipped_folders(root: Path) -> list[Path]:
@@ -147,9 +168,9 @@ def wall_range(minutes: list[float]) -> str:
 
 def table(grouped: dict) -> str:
     lines = [
-        "| cell | robot, wire | recipe | training seeds | SR reach | SR insert / success "
-        "| held out | reference | env steps, wall time per run |",
-        "|---|---|---|---:|---:|---:|---:|---:|---|",
+        "| cell | robot, wire | recipe | training seeds | checkpoint | SR reach "
+        "| SR insert / success | held out | reference | env steps, wall time per run |",
+        "|---|---|---|---:|---|---:|---:|---:|---:|---|",
     ]
     for (variant, robot, wire, how), runs in grouped.items():
         metric = headline_metric(runs[0][2])
@@ -158,7 +179,7 @@ def table(grouped: dict) -> str:
         minutes = [r["wall_time_s"] / 60 for _, r, _ in runs]
         reference = REFERENCE.get(variant)
         lines.append(
-            f"| {variant} | {robot}, {wire} | {how} | {seeds} | "
+            f"| {variant} | {robot}, {wire} | {how} | {seeds} | {checkpoint_column(runs)} | "
             f"{across(runs, 'public', 'reach_success')} | **{across(runs, 'public', metric)}** | "
             f"{across(runs, 'held_out', metric)} | "
             f"{'-' if reference is None else f'{100 * reference:.1f} %'} | "

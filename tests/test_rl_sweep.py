@@ -4,7 +4,8 @@ The truth: a run made of a shipped cuboid checkpoint that inserts (100 % on the 
 held-out lists) and, saved after it, the same network with its output layer zeroed, which
 commands no motion and so never inserts.  Validation selection must pick the working
 checkpoint although ties and recency favour the later one; ``--policy RUN`` alone stays the
-latest checkpoint; across runs, each run's pick is what enters the mean.
+latest checkpoint; across runs, each run's pick is what enters the mean, and is what
+``python -m wirecraft.rl.export --selection`` ships.
 """
 
 from __future__ import annotations
@@ -95,6 +96,23 @@ def test_across_runs_each_runs_pick_enters_the_mean(run, tmp_path):
     across = result["across_runs"]["success"]
     assert across["per_run"] == per_run
     assert across["mean"] == pytest.approx(sum(per_run) / 2)
+
+    # the pick is what gets shipped, with the choice in its record
+    from wirecraft.rl.export import main as export
+
+    assert export([str(run), "--selection", str(out), "--out", str(tmp_path / "shipped")]) == 0
+    record = json.loads((tmp_path / "shipped/wirecraft_rl.json").read_text())
+    assert record["latest_checkpoint"] == "checkpoints/model_39.pt"
+    chosen = record["shipped"]["selection"]
+    assert (chosen["chosen"], chosen["validation_seed"], sorted(chosen["candidates"])) == (
+        39,
+        5,
+        ["39", "40"],
+    )
+    argv = [str(run), "--selection", str(out), "--checkpoint", "model_40.pt"]
+    assert export([*argv, "--out", str(tmp_path / "no")]) == 2  # not the one chosen
+    assert export([str(tmp_path), "--selection", str(out), "--out", str(tmp_path / "no")]) == 2
+    assert not (tmp_path / "no").exists()
 
 
 def _refused(argv, capsys, flag):

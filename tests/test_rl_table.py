@@ -19,10 +19,12 @@ def rl_table(load_benchmark):
     return load_benchmark("rl_table")
 
 
-def shipped_copy(source: Path, out: Path, seed: int, insert: float) -> None:
+def shipped_copy(source: Path, out: Path, seed: int, insert: float, selection=None) -> None:
     shutil.copytree(source, out)
     record = json.loads((out / RUN_FILE).read_text())
     record["config"]["seed"] = seed
+    if selection is not None:
+        record["shipped"]["selection"] = selection
     for evaluation in record["shipped"]["evaluations"]:
         evaluation["insert_success"]["mean"] = insert
     (out / RUN_FILE).write_text(json.dumps(record))
@@ -31,7 +33,9 @@ def shipped_copy(source: Path, out: Path, seed: int, insert: float) -> None:
 def test_training_seeds_of_a_cell_are_one_row(rl_table, tmp_path):
     source = ROOT / "checkpoints" / "ppo_insertion_cylinder_seed0"
     shipped_copy(source, tmp_path / "a", 0, 0.9)
-    shipped_copy(source, tmp_path / "b", 1, 1.0)
+    chosen = {"method": "validation", "validation_seed": 1, "ranked_by": "success"}
+    chosen.update(chosen=35, candidates={"30": 0.5, "35": 1.0, "39": 0.75})
+    shipped_copy(source, tmp_path / "b", 1, 1.0, selection=chosen)
     shipped_copy(ROOT / "checkpoints" / "ppo_insertion_cuboid_seed0", tmp_path / "c", 0, 0.75)
     readme = tmp_path / "README.md"
     readme.write_text("intro\n<!-- rl-table -->\nold\n<!-- /rl-table -->\nend\n")
@@ -40,10 +44,11 @@ def test_training_seeds_of_a_cell_are_one_row(rl_table, tmp_path):
     assert len(rows) == 2
     cylinder = next(r for r in rows if "connector=cylinder" in r)
     # mean 0.95, population std 0.05 of the two runs' means, on both seed lists
-    assert "| 0, 1 |" in cylinder
+    assert "| 0, 1 | last (seed 0); best of 3 on --seed 1 (seed 1) |" in cylinder
     assert cylinder.count("95.0 +/- 5.0 %") == 2
     assert "93.8 %" in cylinder  # the reference's figure for the cell
     cuboid = next(r for r in rows if "connector=cuboid" in r)
+    assert "| 0 | last |" in cuboid
     assert cuboid.count("75.0 %") == 2
     assert "old" not in readme.read_text() and readme.read_text().endswith("end\n")
 

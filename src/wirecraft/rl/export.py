@@ -3,6 +3,11 @@ for the repository (``checkpoints/`` holds the reference cells; checkpoints/READ
 
     python -m wirecraft.rl.export RUN --checkpoint model_39.pt --out checkpoints/NAME \\
         --command "wirecraft train ppo ..." --evaluation public.json --evaluation heldout.json
+    python -m wirecraft.rl.export RUN --selection sweep.json --out checkpoints/NAME ...
+
+``--selection``: a ``wirecraft eval --select validation --json`` document (a sweep of this run,
+or of several runs including it); the checkpoint it chose is shipped and the record keeps the
+choice (``shipped.selection``: validation seed, criterion, each candidate's figure).
 
 The folder is a run directory that ``wirecraft eval --policy`` and ``load_policy`` read as any
 other: ``wirecraft_rl.json`` (the run's record, with the shipped checkpoint as its only and
@@ -32,16 +37,43 @@ from wirecraft.rl.common import (
 SHIPPED_METRICS = ("success", "reach_success", "insert_success")
 
 
+def run_selection(document: dict, run_dir: Path, where: str = "the selection") -> dict:
+    """The validation choice that a ``wirecraft eval --select validation --json`` document
+    (one run's sweep, or several runs' under ``runs``) made for ``run_dir``."""
+    sweeps = document.get("runs", [document])
+    for sweep in sweeps:
+        if "policy" in sweep and Path(sweep["policy"]).resolve() == run_dir.resolve():
+            chosen = sweep.get("selection")
+            if not chosen or chosen.get("method") != "validation":
+                raise ValueError(f"{where}: {run_dir} was not selected with --select validation")
+            try:
+                return {
+                    "method": "validation",
+                    "validation_seed": chosen["validation_seed"],
+                    "ranked_by": chosen["ranked_by"],
+                    "chosen": chosen["chosen_step"],
+                    "candidates": {
+                        str(r["step"]): r["metrics"][chosen["ranked_by"]]["mean"]
+                        for r in sweep["checkpoints"]
+                    },
+                }
+            except (KeyError, TypeError) as err:
+                raise ValueError(f"{where}: not a sweep document ({err!r} missing)") from None
+    raise ValueError(f"{where}: no sweep of {run_dir}")
+
+
 def export_policy(
     run_dir: str | Path,
     out: str | Path,
     checkpoint: str | None = None,
     command: str | None = None,
     evaluations: tuple[str | Path, ...] = (),
+    selection: str | Path | None = None,
 ) -> Path:
-    """Write the shipped policy of ``run_dir``'s ``checkpoint`` (default: its latest) to
-    ``out`` (which must not exist); returns ``out``.  ``evaluations``: JSON documents of
-    ``wirecraft eval --json`` on this checkpoint, whose metrics the record keeps."""
+    """Write the shipped policy of ``run_dir``'s ``checkpoint`` (default: the one
+    ``selection`` chose, else its latest) to ``out`` (which must not exist); returns ``out``.
+    ``evaluations``: JSON documents of ``wirecraft eval --json`` on this checkpoint, whose
+    metrics the record keeps; ``selection``: a ``--select validation`` sweep document."""
     import torch
 
     run_dir, out = Path(run_dir), Path(out)
@@ -50,6 +82,13 @@ def export_policy(
         raise ValueError(f"{run_dir}: only state PPO runs are exported, not {run['algorithm']}")
     if out.exists():
         raise ValueError(f"{out} exists: give a new folder")
+    chosen = None
+    if selection is not None:
+        chosen = run_selection(json.loads(Path(selection).read_text()), run_dir, str(selection))
+        picked = f"model_{chosen['chosen']}.pt"
+        if checkpoint not in (None, picked):
+            raise ValueError(f"{selection} chose {picked}, not --checkpoint {checkpoint}")
+        checkpoint = picked
     if checkpoint is None:
         source = checkpoint_path(run_dir, run)
     else:
@@ -79,6 +118,8 @@ def export_policy(
         "train_command": command,
         "evaluations": results,
     }
+    if chosen is not None:
+        record["shipped"]["selection"] = chosen
     actor = {key: saved[key] for key in ("actor_state_dict", "iter", "infos") if key in saved}
     with folder_built_beside(out, "export") as staging:
         (staging / CHECKPOINT_DIR).mkdir(parents=True)
@@ -98,9 +139,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--evaluation", action="append", default=[], help="a wirecraft eval --json document"
     )
+    parser.add_argument(
+        "--selection",
+        default=None,
+        help="a wirecraft eval --select validation --json document: ship the checkpoint it chose",
+    )
     args = parser.parse_args(argv)
     try:
-        out = export_policy(args.run, args.out, args.checkpoint, args.command, args.evaluation)
+        out = export_policy(
+            args.run, args.out, args.checkpoint, args.command, args.evaluation, args.selection
+        )
     except (ValueError, OSError) as err:
         print(f"export: error: {err}", file=sys.stderr)
         return 2
