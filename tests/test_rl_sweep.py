@@ -133,4 +133,14 @@ def test_bad_rl_sweeps_are_refused(run, tmp_path, capsys):
     across = ["eval", *TASK, "--policy", str(run), "scripted"]
     _refused([*across, "--select", "validation", "--seed", "1"], capsys, "--select")
     _refused([*across, "--checkpoints", "39"], capsys, "--checkpoints")
+    both = ["eval", *TASK, "--policy", str(run), str(run.parent), "--select", "reference"]
+    _refused(both, capsys, "--select")  # a folder that is no run
+    second = tmp_path / "second"
+    shutil.copytree(run, second)
+    (second / "checkpoints/model_40.pt").unlink()
+    argv = ["eval", *TASK, "--policy", str(run), str(second), "--select", "reference"]
+    assert main([*argv, "--checkpoints", "39,40"]) == 2
+    out, err = capsys.readouterr()
+    assert "--checkpoints" in err and "40" in err, err
+    assert out == ""  # refused before the first run was evaluated
     _refused([*across, "--select", "reference", "--curve", "c.png"], capsys, "--curve")

@@ -291,6 +291,8 @@ def run_across(args, family: str, env_kwargs: dict, evaluate, evaluate_sweep, wr
         run = None if builtin else sweep_mod.swept_run(policy, args.select is not None)
         if args.select is not None and run is None:
             raise usage_error("--select", f"{policy} is not {SWEPT}")
+        if run is not None:
+            sweep_mod.choose(run.checkpoints, args.checkpoints, args.select)  # a typo fails now
         if args.select is None and not builtin and sweep_mod.is_imitation_run(policy):
             raise usage_error(
                 "--policy",
