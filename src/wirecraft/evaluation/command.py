@@ -282,8 +282,6 @@ def run_across(args, family: str, env_kwargs: dict, evaluate, evaluate_sweep, wr
     only_with(args, one, "--traces", "--video", "--report", "--label", "--curve")
     if args.select is None:
         only_with(args, "--select (several runs)", "--checkpoints")
-    if args.select == "validation" and args.seed is None:
-        raise usage_error("--seed", "--select validation picks on the --seed N list: pass it")
     swept = {}
     for policy in policies:
         check_policy(args, policy)
@@ -359,8 +357,8 @@ def run(args, task_kwargs, write_json) -> int:
         only_with(
             args, "one checkpoint (not a sweep)", "--traces", "--video", "--report", "--label"
         )
-        if args.select == "validation" and args.seed is None:
-            raise usage_error("--seed", "--select validation picks on the --seed N list: pass it")
+    if args.select == "validation" and args.seed is None:  # one run or several
+        raise usage_error("--seed", "--select validation picks on the --seed N list: pass it")
     if not TASKS.get(family).metrics.pulls:
         pulling = ", ".join(n for n in TASKS if TASKS.get(n).metrics.pulls)
         only_with(

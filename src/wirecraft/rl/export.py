@@ -37,9 +37,10 @@ from wirecraft.rl.common import (
 SHIPPED_METRICS = ("success", "reach_success", "insert_success")
 
 
-def run_selection(document: dict, run_dir: Path, where: str = "the selection") -> dict:
+def run_selection(document: dict, run_dir: Path, where: str = "the selection") -> tuple[dict, str]:
     """The validation choice that a ``wirecraft eval --select validation --json`` document
-    (one run's sweep, or several runs' under ``runs``) made for ``run_dir``."""
+    (one run's sweep, or several runs' under ``runs``) made for ``run_dir``, as the record
+    keeps it, and the chosen checkpoint's file name."""
     sweeps = document.get("runs", [document])
     for sweep in sweeps:
         if "policy" in sweep and Path(sweep["policy"]).resolve() == run_dir.resolve():
@@ -47,7 +48,7 @@ def run_selection(document: dict, run_dir: Path, where: str = "the selection") -
             if not chosen or chosen.get("method") != "validation":
                 raise ValueError(f"{where}: {run_dir} was not selected with --select validation")
             try:
-                return {
+                record = {
                     "method": "validation",
                     "validation_seed": chosen["validation_seed"],
                     "ranked_by": chosen["ranked_by"],
@@ -57,6 +58,7 @@ def run_selection(document: dict, run_dir: Path, where: str = "the selection") -
                         for r in sweep["checkpoints"]
                     },
                 }
+                return record, Path(chosen["score"]["path"]).name
             except (KeyError, TypeError) as err:
                 raise ValueError(f"{where}: not a sweep document ({err!r} missing)") from None
     raise ValueError(f"{where}: no sweep of {run_dir}")
@@ -84,8 +86,8 @@ def export_policy(
         raise ValueError(f"{out} exists: give a new folder")
     chosen = None
     if selection is not None:
-        chosen = run_selection(json.loads(Path(selection).read_text()), run_dir, str(selection))
-        picked = f"model_{chosen['chosen']}.pt"
+        document = json.loads(Path(selection).read_text())
+        chosen, picked = run_selection(document, run_dir, str(selection))
         if checkpoint not in (None, picked):
             raise ValueError(f"{selection} chose {picked}, not --checkpoint {checkpoint}")
         checkpoint = picked
