@@ -411,6 +411,10 @@ class ReactiveDemonstrator:
     def act(self, state) -> np.ndarray:
         return self.expert.act(np.atleast_2d(state))
 
+    def reset(self, env_ids=None, seed: int | None = None) -> None:
+        """Nothing to forget: the expert's action is a function of the state alone."""
+        del env_ids, seed
+
 
 @functools.cache  # one class per task: collect asks for it in every worker and episode run
 def reactive_demonstrator(task: str) -> type[ReactiveDemonstrator]:

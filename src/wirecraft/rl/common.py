@@ -76,26 +76,36 @@ def checkpoint_path(run_dir: Path, run: dict, path: str | os.PathLike | None = N
     return run_dir / latest
 
 
-def expert_for(task: str, control: str | None, purpose: str):
-    """The task's scripted-expert class; a ValueError naming ``purpose`` when ``control`` is
-    given and is not the mode the expert drives."""
-    from wirecraft.experts import expert_class
+def expert_for(task: str, control: str | None, purpose: str, kind: str = "scripted"):
+    """The class of ``task``'s ``kind`` of expert (``experts.DEMONSTRATORS``: scripted or
+    reactive); a ValueError naming ``purpose`` when ``control`` is given and is not the mode
+    the expert drives."""
+    from wirecraft.experts import demonstrator_class
 
-    expert_cls = expert_class(task)
+    expert_cls = demonstrator_class(task, kind)
     if control is not None and control != expert_cls.CONTROL:
         raise ValueError(
-            f"{purpose} come from the {task} expert, which needs "
+            f"{purpose} come from the {task} {kind} expert, which needs "
             f"control={expert_cls.CONTROL!r}; got control={control!r}"
         )
     return expert_cls
 
 
-def expert_vec_env(task: str, env_kwargs: dict, purpose: str, num_envs: int, seed: int, **options):
-    """The task's scripted expert (seeded: its random perturbations follow ``seed``) on a new
-    vector env of ``env_kwargs`` in the expert's control mode (``expert_for`` checks it)."""
+def expert_vec_env(
+    task: str,
+    env_kwargs: dict,
+    purpose: str,
+    num_envs: int,
+    seed: int,
+    kind: str = "scripted",
+    **options,
+):
+    """``task``'s ``kind`` of expert (seeded: the scripted one's random perturbations follow
+    ``seed``) on a new vector env of ``env_kwargs`` in the expert's control mode
+    (``expert_for`` checks it)."""
     import wirecraft
 
-    expert_cls = expert_for(task, env_kwargs.get("control"), purpose)
+    expert_cls = expert_for(task, env_kwargs.get("control"), purpose, kind)
     env_kwargs = {**env_kwargs, "control": expert_cls.CONTROL}
     venv = wirecraft.make_vec(task, num_envs, **options, **env_kwargs)
     return expert_cls(venv, seed=seed), venv

@@ -281,6 +281,19 @@ class SACfDConfig:
     bc_weight_end: float = 0.5
     bc_anneal_start: int = 80_000  # env steps
     bc_anneal_end: int = 250_000
+    # Not in the reference (docs/baselines.md, "SACfD"): the expert whose episodes fill the
+    # demonstration buffer, the task's "scripted" one or its memoryless "reactive" one.
+    demo_expert: str = "scripted"
+    # Not in the reference: what actor and critics read (rl/features.py), "state" or
+    # "relative" (the state plus goal-relative vectors computed from it).
+    inputs: str = "state"
+    # Not in the reference: the behaviour-cloning term's pairs, "demos" (the demonstration
+    # buffer's) or "replay" (states from the agent's own replay buffer, labelled by the task's
+    # reactive expert: DAgger).
+    bc_states: str = "demos"
+    # Not in the reference: maximum-likelihood fits of the actor (mean and spread) to the
+    # demonstrations before the first env step.  0: SAC starts from random weights.
+    bc_init_steps: int = 0
     checkpoint_every_steps: int = 50_000
     log_every_steps: int = 10_000
     seed: int = 0
@@ -288,6 +301,19 @@ class SACfDConfig:
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
+        from wirecraft.experts import DEMONSTRATORS
+        from wirecraft.rl.features import ACTOR_INPUTS
+
+        for name, value, valid in (
+            ("demo_expert", self.demo_expert, DEMONSTRATORS),
+            ("inputs", self.inputs, ACTOR_INPUTS),
+            ("bc_states", self.bc_states, ("demos", "replay")),
+        ):
+            if value not in valid:
+                raise ValueError(
+                    f"{owner}: {name} must be one of {', '.join(valid)}, got {value!r}"
+                )
+        _int_at_least(owner, "bc_init_steps", self.bc_init_steps, 0)
         for name in ("num_envs", "total_steps", "batch_size", "replay_per_env"):
             _int_at_least(owner, name, getattr(self, name), 1)
         for name in ("warmup_steps", "bc_anneal_start", "seed", "threads"):

@@ -32,8 +32,11 @@ from wirecraft.experts.reactive import REACTIVE_EXPERTS
 from wirecraft.rl.common import EPISODE_FLAGS
 
 
-def check_dagger_task(task: str, control: str) -> None:
-    """A ValueError unless a reactive expert can label ``task`` under ``control``."""
+def check_dagger_task(
+    task: str, control: str, options: str = "dagger_init_iterations and dagger_aux_lr"
+) -> None:
+    """A ValueError (naming the ``options`` that need it) unless a reactive expert can label
+    ``task`` under ``control``."""
     expert = REACTIVE_EXPERTS.get(task) if task in REACTIVE_EXPERTS else None
     if expert is None or control != expert.CONTROL:
         needs = " or ".join(
@@ -41,8 +44,7 @@ def check_dagger_task(task: str, control: str) -> None:
             for name in REACTIVE_EXPERTS
         )
         raise ValueError(
-            f"dagger_init_iterations and dagger_aux_lr need {needs} (a reactive expert's), "
-            f"got task={task!r}, control={control!r}"
+            f"{options} need {needs} (a reactive expert's), got task={task!r}, control={control!r}"
         )
 
 

@@ -11,6 +11,13 @@
   observation of the next episode), time-outs bootstrap, diverged episodes do not;
 - the entropy coefficient saved in checkpoints (skrl 2.1 saves only its optimizer).
 
+Options beyond the reference (``SACfDConfig``; docs/baselines.md, "SACfD"): demonstrations
+from the task's memoryless expert (``demo_expert="reactive"``), goal-relative inputs
+(``inputs="relative"``, for actor and critics alike), a BC term on the agent's own replay
+states labelled by that expert (``bc_states="replay"``: DAgger inside SAC), and a
+maximum-likelihood fit of the actor to the demonstrations before the first step
+(``bc_init_steps``).
+
 Import this module only when training or loading a SACfD policy (it imports torch and skrl).
 """
 
@@ -23,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
+from gymnasium.vector import VectorWrapper
 from skrl.agents.torch.sac import SAC, SAC_CFG
 from skrl.memories.torch import RandomMemory
 from skrl.models.torch import DeterministicMixin, GaussianMixin, Model
@@ -130,6 +138,10 @@ class DemoMixingMemory(RandomMemory):
         ]
         return [batch]
 
+    def sample_own(self, names, *, batch_size: int):
+        """A batch of the agent's own transitions only."""
+        return super().sample(names, batch_size=batch_size)[0]
+
 
 def _memory(size: int, num_envs: int, observation_space, action_space, cls=RandomMemory, **kw):
     memory = cls(memory_size=size, num_envs=num_envs, device="cpu", **kw)
@@ -152,9 +164,21 @@ class _EntropyState(nn.Module):
 class SACfD(SAC):
     """skrl SAC with a demonstration buffer and an annealed BC term (see the module doc)."""
 
-    def __init__(self, *, demo_memory, sacfd: SACfDConfig, num_envs: int, on_checkpoint=None, **kw):
+    def __init__(
+        self,
+        *,
+        demo_memory,
+        sacfd: SACfDConfig,
+        num_envs: int,
+        on_checkpoint=None,
+        labeller: Callable[[torch.Tensor], torch.Tensor] | None = None,
+        **kw,
+    ):
         super().__init__(**kw)
+        if sacfd.bc_states == "replay" and labeller is None:
+            raise ValueError("bc_states='replay' needs a labeller (the task's reactive expert)")
         self.demo_memory = demo_memory
+        self.labeller = labeller
         self.sacfd = sacfd
         self.num_envs = num_envs
         self.on_checkpoint = on_checkpoint
@@ -187,9 +211,7 @@ class SACfD(SAC):
         if weight <= 0 or not len(self.demo_memory):
             return
         for _ in range(self.cfg.gradient_steps):
-            obs, actions = self.demo_memory.sample(["observations", "actions"], batch_size=n_demo)[
-                0
-            ]
+            obs, actions = self.bc_batch(n_demo)
             inputs = {"observations": self._observation_preprocessor(obs), "states": None}
             _, outputs = self.policy.act(inputs, role="policy")
             bc_loss = weight * F.mse_loss(outputs["mean_actions"], actions)
@@ -202,6 +224,14 @@ class SACfD(SAC):
         if self.write_interval > 0:
             self.track_data("Loss / BC loss", self.last_bc_loss)
             self.track_data("Coefficient / BC weight", weight)
+
+    def bc_batch(self, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The behaviour-cloning term's (observations, target actions)."""
+        if self.sacfd.bc_states == "demos":
+            return self.demo_memory.sample(["observations", "actions"], batch_size=size)[0]
+        (obs,) = self.memory.sample_own(["observations"], batch_size=size)
+        obs = obs[torch.isfinite(obs).all(dim=1)]
+        return obs, self.labeller(obs)
 
     def write_checkpoint(self, *, timestep: int, timesteps: int) -> None:
         super().write_checkpoint(timestep=timestep, timesteps=timesteps)
@@ -246,6 +276,55 @@ def agent_config(cfg: SACfDConfig, observation_space, run_dir: Path) -> SAC_CFG:
     return sac
 
 
+# -- inputs --------------------------------------------------------------------------------------
+class TransformedInputs(VectorWrapper):
+    """A vector env whose observations, final ones included, pass through ``transform``
+    ((N, state) -> (N, width) arrays; rl/features.py)."""
+
+    def __init__(self, env, transform: Callable[[np.ndarray], np.ndarray], width: int) -> None:
+        import gymnasium as gym
+
+        super().__init__(env)
+        self.transform = transform
+        self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (width,), np.float64)
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (env.num_envs, width), np.float64)
+
+    def reset(self, **kwargs):
+        obs, infos = self.env.reset(**kwargs)
+        return self.transform(obs), infos
+
+    def step(self, actions):
+        obs, rewards, terminated, truncated, infos = self.env.step(actions)
+        if "final_obs" in infos:
+            final = infos["final_obs"].copy()
+            for i in np.flatnonzero(infos["_final_obs"]):
+                final[i] = self.transform(np.asarray(final[i])[None])[0]
+            infos = {**infos, "final_obs": final}
+        return self.transform(obs), rewards, terminated, truncated, infos
+
+
+def inputs_transform(cfg: SACfDConfig, task: str):
+    """(N, state) -> what actor and critics read (``cfg.inputs``); the identity for "state"."""
+    from wirecraft.rl.features import actor_transform
+
+    transform = actor_transform(cfg.inputs, task)
+    return transform if transform is not None else (lambda states: np.asarray(states, float))
+
+
+def expert_labeller(task: str, venv, state_dim: int) -> Callable[[torch.Tensor], torch.Tensor]:
+    """Labels (N, inputs) observations with the task's reactive expert's actions on their
+    first ``state_dim`` columns (the state every input option starts with)."""
+    from wirecraft.experts.reactive import REACTIVE_EXPERTS
+
+    expert = REACTIVE_EXPERTS.get(task)(venv)
+
+    def label(obs: torch.Tensor) -> torch.Tensor:
+        states = obs[:, :state_dim].numpy().astype(np.float64)
+        return torch.as_tensor(expert.act(states), dtype=torch.float32)
+
+    return label
+
+
 # -- demonstrations ------------------------------------------------------------------------------
 def collect_demonstrations(
     task: str,
@@ -259,12 +338,15 @@ def collect_demonstrations(
     success_only: bool = True,
     progress: bool = True,
     max_factor: float = 4.0,
+    kind: str = "scripted",
+    transform: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> dict[str, torch.Tensor]:
-    """``transitions`` transitions of the scripted expert, as float32 tensors (rewards already
-    scaled).  ``success_only``: keep only whole episodes in which ``success`` was reached
-    (giving up after ``max_factor * transitions`` steps)."""
+    """``transitions`` transitions of the task's ``kind`` of expert (scripted or reactive), as
+    float32 tensors (rewards already scaled; observations through ``transform`` when given).
+    ``success_only``: keep only whole episodes in which ``success`` was reached (giving up
+    after ``max_factor * transitions`` steps)."""
     expert, venv = expert_vec_env(
-        task, env_kwargs, "demonstrations", num_envs, seed, threads=threads
+        task, env_kwargs, "demonstrations", num_envs, seed, kind, threads=threads
     )
     obs, _ = venv.reset(seed=seed)
     expert.reset()
@@ -305,13 +387,39 @@ def collect_demonstrations(
         venv.close()
     kept = kept[:transitions]
     columns = list(zip(*kept, strict=True))
+    transform = transform or (lambda states: states)
     return {
-        "observations": torch.as_tensor(np.stack(columns[0]), dtype=torch.float32),
+        "observations": torch.as_tensor(transform(np.stack(columns[0])), dtype=torch.float32),
         "actions": torch.as_tensor(np.stack(columns[1]), dtype=torch.float32),
         "rewards": torch.as_tensor(np.array(columns[2])[:, None], dtype=torch.float32),
-        "next_observations": torch.as_tensor(np.stack(columns[3]), dtype=torch.float32),
+        "next_observations": torch.as_tensor(transform(np.stack(columns[3])), dtype=torch.float32),
         "terminated": torch.as_tensor(np.array(columns[4])[:, None], dtype=torch.bool),
     }
+
+
+def behaviour_clone_start(agent: SACfD, demos: dict, steps: int, seed: int) -> float:
+    """Fit ``agent``'s actor to the demonstrations by maximum likelihood (its Gaussian's mean
+    and spread, so that SAC's first samples explore around the demonstrations rather than at
+    a random width), after fitting the observation scaler to them; returns the last negative
+    log-likelihood."""
+    generator = torch.Generator().manual_seed(seed)
+    obs, actions = demos["observations"], demos["actions"]
+    agent._observation_preprocessor(obs, train=True)  # the scaler's statistics
+    optimizer = torch.optim.Adam(agent.policy.parameters(), lr=agent.sacfd.learning_rate)
+    loss = torch.tensor(float("nan"))
+    for _ in range(steps):
+        idx = torch.randint(len(obs), (agent.cfg.batch_size,), generator=generator)
+        inputs = {
+            "observations": agent._observation_preprocessor(obs[idx]),
+            "taken_actions": actions[idx],
+            "states": None,
+        }
+        _, outputs = agent.policy.act(inputs, role="policy")
+        loss = -outputs["log_prob"].mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    return float(loss.detach())
 
 
 # -- training ------------------------------------------------------------------------------------
@@ -341,6 +449,7 @@ def train_sacfd(
     total = math.ceil(total_steps / n)
     set_seed(cfg.seed + start)  # a resumed run starts new episodes, not the first ones again
 
+    transform = inputs_transform(cfg, task)
     demo_file = run_dir / "demos.pt"
     if demo_file.exists():
         demos = torch.load(demo_file, weights_only=True)
@@ -355,13 +464,18 @@ def train_sacfd(
             threads=cfg.threads,
             success_only=cfg.demo_success_only,
             progress=progress,
+            kind=cfg.demo_expert,
+            transform=transform,
         )
         torch.save(demos, demo_file)
 
     venv = wirecraft.make_vec(
         task, n, threads=cfg.threads, **env_kwargs, diagnostics=False, sync_envs=False
     )
-    env = wrap_env(venv, wrapper="gymnasium", verbose=False)
+    state_dim = int(venv.single_observation_space.shape[0])
+    labeller = expert_labeller(task, venv, state_dim) if cfg.bc_states == "replay" else None
+    width = int(demos["observations"].shape[1])
+    env = wrap_env(TransformedInputs(venv, transform, width), wrapper="gymnasium", verbose=False)
     obs_space, act_space = env.observation_space, env.action_space
     demo_memory = _memory(len(demos["observations"]), 1, obs_space, act_space, replacement=True)
     demo_memory.add_samples(**demos)
@@ -390,11 +504,16 @@ def train_sacfd(
         sacfd=cfg,
         num_envs=n,
         on_checkpoint=checkpoint_written,
+        labeller=labeller,
     )
     if checkpoint is not None:
         agent.load(str(checkpoint))
         # the replay buffer is not saved: warm up again before updating
         agent.cfg.learning_starts = start + math.ceil(cfg.warmup_steps / n)
+    elif cfg.bc_init_steps:
+        nll = behaviour_clone_start(agent, demos, cfg.bc_init_steps, cfg.seed)
+        if progress:
+            tqdm.write(f"behaviour-cloned start: {cfg.bc_init_steps} steps, NLL {nll:.3f}")
     agent.init()
     agent.enable_training_mode(True)
 
@@ -472,8 +591,16 @@ def train_sacfd(
 class SACPolicy:
     """A trained SACfD actor: deterministic (mean) actions from numpy observations."""
 
-    def __init__(self, actor: GaussianActor, scaler, control: str, obs_dim: int) -> None:
+    def __init__(
+        self,
+        actor: GaussianActor,
+        scaler,
+        control: str,
+        obs_dim: int,
+        transform: Callable[[np.ndarray], np.ndarray],
+    ) -> None:
         self.actor = actor.eval()
+        self.transform = transform
         self.scaler = scaler
         self.control = control
         self.obs_dim = obs_dim
@@ -483,7 +610,7 @@ class SACPolicy:
         del env_ids
 
     def act(self, obs) -> np.ndarray:
-        obs = state_batch(obs, self.obs_dim)
+        obs = self.transform(state_batch(obs, self.obs_dim))
         with torch.no_grad():
             x = torch.as_tensor(obs, dtype=torch.float32)
             if self.scaler is not None:
@@ -498,10 +625,12 @@ def load_sac_policy(run: dict, checkpoint: Path) -> SACPolicy:
     from skrl.resources.preprocessors.torch import RunningStandardScaler
 
     from wirecraft.rl.config import config_from_dict
+    from wirecraft.rl.features import actor_input_dim
 
     cfg = config_from_dict("sacfd", run["config"])
     obs_dim, action_dim = int(run["obs"]["dim"]), int(run["action_dim"])
-    obs_space = gym.spaces.Box(-np.inf, np.inf, (obs_dim,), np.float64)
+    width = actor_input_dim(cfg.inputs, obs_dim)
+    obs_space = gym.spaces.Box(-np.inf, np.inf, (width,), np.float64)
     act_space = gym.spaces.Box(-1.0, 1.0, (action_dim,), np.float32)
     actor = GaussianActor(obs_space, act_space, cfg.hidden_dims, cfg.activation)
     saved = torch.load(checkpoint, map_location="cpu", weights_only=False)
@@ -511,4 +640,4 @@ def load_sac_policy(run: dict, checkpoint: Path) -> SACPolicy:
         scaler = RunningStandardScaler(obs_space, device="cpu")
         scaler.load_state_dict(saved["observation_preprocessor"])
         scaler.eval()
-    return SACPolicy(actor, scaler, run["control"], obs_dim)
+    return SACPolicy(actor, scaler, run["control"], obs_dim, inputs_transform(cfg, run["task"]))

@@ -125,24 +125,26 @@ def training_vec_options(env_kwargs: dict) -> dict:
 
 
 def _check_expert_control(algorithm: str, task: str, env_kwargs: dict, cfg) -> None:
-    """Before anything is written: a run that drives the scripted expert for its data (SACfD's
-    demonstrations, PPO's cloned start or expert starts) needs the expert's control mode."""
+    """Before anything is written: a run that drives an expert for its data (SACfD's
+    demonstrations, PPO's cloned start or expert starts) or labels states with the reactive
+    expert needs that expert's control mode, and ``relative`` inputs need a task that defines
+    them."""
     from wirecraft.rl.common import expert_for
+    from wirecraft.rl.dagger import check_dagger_task
+    from wirecraft.rl.features import actor_transform
     from wirecraft.tasks import TASKS
 
-    uses_expert = algorithm == "sacfd" or (
-        algorithm == "ppo" and (cfg.bc_init_transitions or cfg.expert_starts)
-    )
     control = env_kwargs.get("control") or TASKS.get(task).default_control
-    if uses_expert:
-        expert_for(task, control, f"{algorithm} runs' expert data")
+    if algorithm == "sacfd":
+        expert_for(task, control, "sacfd runs' demonstrations", cfg.demo_expert)
+        if cfg.bc_states == "replay":
+            check_dagger_task(task, control, "bc_states='replay'")
+        actor_transform(cfg.inputs, task)  # a ValueError for a task without them
+    if algorithm == "ppo" and (cfg.bc_init_transitions or cfg.expert_starts):
+        expert_for(task, control, "ppo runs' expert data")
     if algorithm == "ppo" and (cfg.dagger_init_iterations or cfg.dagger_aux_lr):
-        from wirecraft.rl.dagger import check_dagger_task
-
         check_dagger_task(task, control)
     if algorithm == "ppo":
-        from wirecraft.rl.features import actor_transform
-
         actor_transform(cfg.actor_inputs, task)  # a ValueError for a task without them
 
 
