@@ -14,7 +14,7 @@ import wirecraft
 from wirecraft.experts.reactive import FINE_SCALES, ReactiveInsertionExpert
 from wirecraft.rl import RUN_FILE, load_policy, train
 from wirecraft.rl.config import PPOConfig, VisionPPOConfig
-from wirecraft.rl.dagger import discounted_returns, run_wave
+from wirecraft.rl.dagger import actor_means, discounted_returns, run_wave
 from wirecraft.rl.features import actor_input_dim, actor_transform
 
 relative_features = ReactiveInsertionExpert.relative_features
@@ -122,9 +122,12 @@ def test_a_wave_without_the_expert_executes_the_actor_and_still_labels_every_sta
         action[:, 6] = -1.0
         return action
 
+    def act(obs):
+        return actor_means(still_actor, state_observations, obs)
+
     venv = wirecraft.make_vec("insertion", 2, threads=1, control="cartesian", episode_seconds=0.5)
     expert = ReactiveInsertionExpert(venv)
-    wave = run_wave(venv, expert, still_actor, state_observations, 0.0, 5, np.random.default_rng())
+    wave = run_wave(venv, expert, act, 0.0, 5, np.random.default_rng())
     venv.close()
     steps = wave["states"].shape[0]
     assert wave["labels"].shape == (steps, 2, 7)

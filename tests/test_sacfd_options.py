@@ -64,6 +64,7 @@ def test_transformed_inputs_pass_observations_and_final_observations_through():
 
 
 def _agent(cfg: SACfDConfig, obs_dim: int, action_dim: int, tmp_path, labeller=None):
+    torch.manual_seed(0)  # the networks' initial weights
     obs_space = gym.spaces.Box(-np.inf, np.inf, (obs_dim,))
     act_space = gym.spaces.Box(-1.0, 1.0, (action_dim,))
     demos = _memory(64, 1, obs_space, act_space, replacement=True)
@@ -193,3 +194,33 @@ def test_sacfd_with_memoryless_demonstrations_relative_inputs_and_replay_labels(
         expected = torch.tanh(actor.mean_head(actor.net(features))).double().numpy()
     np.testing.assert_allclose(policy.act(obs), expected, atol=1e-5)
     venv.close()
+
+
+def test_dagger_start_runs_expert_then_actor_waves_and_fits_the_labels(tmp_path):
+    from wirecraft.rl.sacfd import dagger_start
+
+    cfg = SACfDConfig(
+        hidden_dims=(64, 64),
+        batch_size=16,
+        dagger_init_iterations=1,
+        dagger_init_envs=2,
+        dagger_init_epochs=400,
+    )
+    agent, _ = _agent(cfg, 42, 7, tmp_path)
+    venv = wirecraft.make_vec("insertion", 2, threads=1, **SHORT)
+    obs, _ = venv.reset(seed=cfg.seed + 20_000)  # the first wave's reset states
+    labels = REACTIVE_EXPERTS.get("insertion")(venv).act(obs)
+    venv.close()
+
+    def actor_error() -> float:
+        x = agent._observation_preprocessor(torch.as_tensor(obs, dtype=torch.float32))
+        with torch.no_grad():
+            _, outputs = agent.policy.act({"observations": x, "states": None}, role="policy")
+        return float(((outputs["mean_actions"].numpy() - labels) ** 2).mean())
+
+    before = actor_error()
+    history = dagger_start(agent, "insertion", SHORT, cfg, lambda s: s, progress=False)
+    assert [h["beta"] for h in history] == [1.0, 0.0]  # the expert's wave, then the actor's
+    assert [h["labels"] for h in history] == [12, 24]  # 2 environments x 6 steps per wave
+    assert {"success", "reach", "insert"} <= set(history[0])
+    assert actor_error() < 0.25 * before

@@ -294,6 +294,12 @@ class SACfDConfig:
     # Not in the reference: maximum-likelihood fits of the actor (mean and spread) to the
     # demonstrations before the first env step.  0: SAC starts from random weights.
     bc_init_steps: int = 0
+    # Not in the reference: a DAgger warm start of the actor before the first SAC step
+    # (rl/dagger.py's waves on dagger_init_envs environments, each fitted dagger_init_epochs
+    # passes by maximum likelihood).  0: off.
+    dagger_init_iterations: int = 0
+    dagger_init_epochs: int = 15
+    dagger_init_envs: int = 64
     checkpoint_every_steps: int = 50_000
     log_every_steps: int = 10_000
     seed: int = 0
@@ -314,6 +320,9 @@ class SACfDConfig:
                     f"{owner}: {name} must be one of {', '.join(valid)}, got {value!r}"
                 )
         _int_at_least(owner, "bc_init_steps", self.bc_init_steps, 0)
+        _int_at_least(owner, "dagger_init_iterations", self.dagger_init_iterations, 0)
+        _int_at_least(owner, "dagger_init_epochs", self.dagger_init_epochs, 1)
+        _int_at_least(owner, "dagger_init_envs", self.dagger_init_envs, 1)
         for name in ("num_envs", "total_steps", "batch_size", "replay_per_env"):
             _int_at_least(owner, name, getattr(self, name), 1)
         for name in ("warmup_steps", "bc_anneal_start", "seed", "threads"):

@@ -71,11 +71,14 @@ def actor_means(actor, obs_groups: Callable, obs: np.ndarray) -> np.ndarray:
         return np.clip(actor(td).numpy().astype(np.float64), -1.0, 1.0)
 
 
-def run_wave(venv, expert, actor, obs_groups, beta: float, seed: int, rng) -> dict:
+def run_wave(
+    venv, expert, act: Callable[[np.ndarray], np.ndarray], beta: float, seed: int, rng
+) -> dict:
     """One episode in every environment of ``venv``: the expert's action with probability
-    ``beta``, else the actor's; returns the states, labels, (T, N) rewards and dones, and the
-    wave's rate of each success flag the task raises (at some step; ``success``, and for
-    insertion ``reach`` and ``insert``)."""
+    ``beta``, else the learner's (``act``: numpy states to its deterministic actions);
+    returns the states, labels, (T, N) rewards and dones, and the wave's rate of each success
+    flag the task raises (at some step; ``success``, and for insertion ``reach`` and
+    ``insert``)."""
     obs, _ = venv.reset(seed=seed)
     n, steps = venv.num_envs, int(venv.unwrapped.envs[0].max_steps)
     states, labels, rewards, dones = [], [], [], []
@@ -85,7 +88,7 @@ def run_wave(venv, expert, actor, obs_groups, beta: float, seed: int, rng) -> di
         action = label.copy()
         if beta < 1.0:
             learner = rng.random(n) >= beta
-            action[learner] = actor_means(actor, obs_groups, obs[learner])
+            action[learner] = act(obs[learner])
         states.append(obs.copy())
         labels.append(label)
         obs, reward, terminated, truncated, info = venv.step(action)
@@ -140,7 +143,9 @@ def dagger_init(
     for k in range(len(history), len(waves)):
         beta = waves[k]
         actor.eval()
-        wave = run_wave(venv, expert, actor, obs_groups, beta, seed + k, rng)
+        wave = run_wave(
+            venv, expert, lambda obs: actor_means(actor, obs_groups, obs), beta, seed + k, rng
+        )
         # float32: what the fits see (and what a resumed warm start must see too)
         states.append(wave["states"].reshape(-1, wave["states"].shape[-1]).astype(np.float32))
         labels.append(wave["labels"].reshape(-1, wave["labels"].shape[-1]).astype(np.float32))

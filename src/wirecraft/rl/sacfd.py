@@ -23,6 +23,7 @@ Import this module only when training or loading a SACfD policy (it imports torc
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -422,6 +423,59 @@ def behaviour_clone_start(agent: SACfD, demos: dict, steps: int, seed: int) -> f
     return float(loss.detach())
 
 
+def dagger_start(
+    agent: SACfD, task: str, env_kwargs: dict, cfg: SACfDConfig, transform, progress: bool
+) -> list[dict]:
+    """A DAgger warm start of ``agent``'s actor: ``cfg.dagger_init_iterations`` waves of
+    rl/dagger.py's ``run_wave`` on ``cfg.dagger_init_envs`` new environments (the expert's
+    action with probability 0.5 ** k, else the actor's mean; the reactive expert labels every
+    state), each followed by ``cfg.dagger_init_epochs`` passes of ``behaviour_clone_start``
+    over all labels so far, then a last wave of the actor alone, fitted too.  Returns one
+    record per wave: beta, its success rates, the labels so far, the fit's last NLL."""
+    import wirecraft
+    from wirecraft.experts.reactive import REACTIVE_EXPERTS
+    from wirecraft.rl.dagger import run_wave
+
+    venv = wirecraft.make_vec(
+        task,
+        cfg.dagger_init_envs,
+        threads=cfg.threads,
+        **env_kwargs,
+        diagnostics=False,
+        sync_envs=False,
+    )
+    expert = REACTIVE_EXPERTS.get(task)(venv)
+
+    def act(states: np.ndarray) -> np.ndarray:
+        x = torch.as_tensor(transform(states), dtype=torch.float32)
+        inputs = {"observations": agent._observation_preprocessor(x), "states": None}
+        with torch.no_grad():
+            _, outputs = agent.policy.act(inputs, role="policy")
+        return np.clip(outputs["mean_actions"].numpy().astype(np.float64), -1.0, 1.0)
+
+    rng = np.random.default_rng(cfg.seed)
+    waves = [0.5**k for k in range(cfg.dagger_init_iterations)] + [0.0]
+    observations, labels, history = [], [], []
+    try:
+        for k, beta in enumerate(waves):
+            wave = run_wave(venv, expert, act, beta, cfg.seed + 20_000 + k, rng)
+            states = wave["states"].reshape(-1, wave["states"].shape[-1])
+            observations.append(torch.as_tensor(transform(states), dtype=torch.float32))
+            labels.append(torch.as_tensor(wave["labels"].reshape(len(states), -1)).float())
+            data = {"observations": torch.cat(observations), "actions": torch.cat(labels)}
+            steps = math.ceil(cfg.dagger_init_epochs * len(data["actions"]) / cfg.batch_size)
+            nll = behaviour_clone_start(agent, data, steps, cfg.seed + k)
+            record = {"wave": k, "beta": beta, **wave["rates"], "labels": len(data["actions"])}
+            history.append({**record, "nll": nll})
+            if progress:
+                from tqdm import tqdm
+
+                tqdm.write(f"DAgger wave {k}: {history[-1]}")
+    finally:
+        venv.close()
+    return history
+
+
 # -- training ------------------------------------------------------------------------------------
 def train_sacfd(
     cfg: SACfDConfig,
@@ -510,10 +564,14 @@ def train_sacfd(
         agent.load(str(checkpoint))
         # the replay buffer is not saved: warm up again before updating
         agent.cfg.learning_starts = start + math.ceil(cfg.warmup_steps / n)
-    elif cfg.bc_init_steps:
-        nll = behaviour_clone_start(agent, demos, cfg.bc_init_steps, cfg.seed)
-        if progress:
-            tqdm.write(f"behaviour-cloned start: {cfg.bc_init_steps} steps, NLL {nll:.3f}")
+    else:
+        if cfg.bc_init_steps:
+            nll = behaviour_clone_start(agent, demos, cfg.bc_init_steps, cfg.seed)
+            if progress:
+                tqdm.write(f"behaviour-cloned start: {cfg.bc_init_steps} steps, NLL {nll:.3f}")
+        if cfg.dagger_init_iterations:
+            history = dagger_start(agent, task, env_kwargs, cfg, transform, progress)
+            (run_dir / "dagger_start.json").write_text(json.dumps(history, indent=1) + "\n")
     agent.init()
     agent.enable_training_mode(True)
 

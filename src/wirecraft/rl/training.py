@@ -137,8 +137,8 @@ def _check_expert_control(algorithm: str, task: str, env_kwargs: dict, cfg) -> N
     control = env_kwargs.get("control") or TASKS.get(task).default_control
     if algorithm == "sacfd":
         expert_for(task, control, "sacfd runs' demonstrations", cfg.demo_expert)
-        if cfg.bc_states == "replay":
-            check_dagger_task(task, control, "bc_states='replay'")
+        if cfg.bc_states == "replay" or cfg.dagger_init_iterations:
+            check_dagger_task(task, control, "bc_states='replay' and dagger_init_iterations")
         actor_transform(cfg.inputs, task)  # a ValueError for a task without them
     if algorithm == "ppo" and (cfg.bc_init_transitions or cfg.expert_starts):
         expert_for(task, control, "ppo runs' expert data")
