@@ -291,12 +291,13 @@ class SACfDConfig:
     # buffer's) or "replay" (states from the agent's own replay buffer, labelled by the task's
     # reactive expert: DAgger).
     bc_states: str = "demos"
-    # Not in the reference: maximum-likelihood fits of the actor (mean and spread) to the
-    # demonstrations before the first env step.  0: SAC starts from random weights.
+    # Not in the reference: Adam steps fitting the actor's mean to the demonstrations (and its
+    # spread to the fit's residual) before the first env step.  0: SAC starts from random
+    # weights.
     bc_init_steps: int = 0
     # Not in the reference: a DAgger warm start of the actor before the first SAC step
     # (rl/dagger.py's waves on dagger_init_envs environments, each fitted dagger_init_epochs
-    # passes by maximum likelihood).  0: off.
+    # passes as bc_init_steps fits).  0: off.
     dagger_init_iterations: int = 0
     dagger_init_epochs: int = 15
     dagger_init_envs: int = 64

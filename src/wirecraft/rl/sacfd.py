@@ -14,9 +14,9 @@
 Options beyond the reference (``SACfDConfig``; docs/baselines.md, "SACfD"): demonstrations
 from the task's memoryless expert (``demo_expert="reactive"``), goal-relative inputs
 (``inputs="relative"``, for actor and critics alike), a BC term on the agent's own replay
-states labelled by that expert (``bc_states="replay"``: DAgger inside SAC), and a
-maximum-likelihood fit of the actor to the demonstrations before the first step
-(``bc_init_steps``).
+states labelled by that expert (``bc_states="replay"``: DAgger inside SAC), a fit of the
+actor to the demonstrations before the first step (``bc_init_steps``), and a DAgger warm
+start of the actor (``dagger_init_iterations``).
 
 Import this module only when training or loading a SACfD policy (it imports torch and skrl).
 """
@@ -399,28 +399,37 @@ def collect_demonstrations(
 
 
 def behaviour_clone_start(agent: SACfD, demos: dict, steps: int, seed: int) -> float:
-    """Fit ``agent``'s actor to the demonstrations by maximum likelihood (its Gaussian's mean
-    and spread, so that SAC's first samples explore around the demonstrations rather than at
-    a random width), after fitting the observation scaler to them; returns the last negative
-    log-likelihood."""
+    """Fit ``agent``'s actor to the demonstrations: the observation scaler to their statistics,
+    the mean to their actions (``steps`` Adam steps of mean squared error, batch
+    ``batch_size``), then its spread to what the mean leaves, per action dimension, for every
+    state (the log-std head's weights zeroed, its bias the log of the residual's RMS), so that
+    SAC's first samples explore around the demonstrations rather than at a random width.
+    Returns the mean squared error over the demonstrations.  (A joint maximum-likelihood fit of
+    mean and spread fits the mean worse: it widens the spread where the actions are hard to
+    fit, and a DAgger warm start fitted that way failed closed loop.)"""
     generator = torch.Generator().manual_seed(seed)
     obs, actions = demos["observations"], demos["actions"]
     agent._observation_preprocessor(obs, train=True)  # the scaler's statistics
     optimizer = torch.optim.Adam(agent.policy.parameters(), lr=agent.sacfd.learning_rate)
-    loss = torch.tensor(float("nan"))
+
+    def means(rows) -> torch.Tensor:
+        inputs = {"observations": agent._observation_preprocessor(obs[rows]), "states": None}
+        return agent.policy.act(inputs, role="policy")[1]["mean_actions"]
+
     for _ in range(steps):
-        idx = torch.randint(len(obs), (agent.cfg.batch_size,), generator=generator)
-        inputs = {
-            "observations": agent._observation_preprocessor(obs[idx]),
-            "taken_actions": actions[idx],
-            "states": None,
-        }
-        _, outputs = agent.policy.act(inputs, role="policy")
-        loss = -outputs["log_prob"].mean()
+        rows = torch.randint(len(obs), (agent.cfg.batch_size,), generator=generator)
+        loss = F.mse_loss(means(rows), actions[rows])
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-    return float(loss.detach())
+    with torch.no_grad():
+        squared = torch.cat(
+            [(means(rows) - actions[rows]) ** 2 for rows in torch.arange(len(obs)).split(4096)]
+        )
+        head = agent.policy.log_std_head
+        head.weight.zero_()
+        head.bias.copy_(squared.mean(0).sqrt().clamp(min=math.exp(LOG_STD_RANGE[0])).log())
+    return float(squared.mean())
 
 
 def dagger_start(
@@ -431,7 +440,8 @@ def dagger_start(
     action with probability 0.5 ** k, else the actor's mean; the reactive expert labels every
     state), each followed by ``cfg.dagger_init_epochs`` passes of ``behaviour_clone_start``
     over all labels so far, then a last wave of the actor alone, fitted too.  Returns one
-    record per wave: beta, its success rates, the labels so far, the fit's last NLL."""
+    record per wave: beta, its success rates, the labels so far, the fit's mean squared
+    error."""
     import wirecraft
     from wirecraft.experts.reactive import REACTIVE_EXPERTS
     from wirecraft.rl.dagger import run_wave
@@ -464,9 +474,9 @@ def dagger_start(
             labels.append(torch.as_tensor(wave["labels"].reshape(len(states), -1)).float())
             data = {"observations": torch.cat(observations), "actions": torch.cat(labels)}
             steps = math.ceil(cfg.dagger_init_epochs * len(data["actions"]) / cfg.batch_size)
-            nll = behaviour_clone_start(agent, data, steps, cfg.seed + k)
+            mse = behaviour_clone_start(agent, data, steps, cfg.seed + k)
             record = {"wave": k, "beta": beta, **wave["rates"], "labels": len(data["actions"])}
-            history.append({**record, "nll": nll})
+            history.append({**record, "mse": mse})
             if progress:
                 from tqdm import tqdm
 
@@ -566,9 +576,9 @@ def train_sacfd(
         agent.cfg.learning_starts = start + math.ceil(cfg.warmup_steps / n)
     else:
         if cfg.bc_init_steps:
-            nll = behaviour_clone_start(agent, demos, cfg.bc_init_steps, cfg.seed)
+            mse = behaviour_clone_start(agent, demos, cfg.bc_init_steps, cfg.seed)
             if progress:
-                tqdm.write(f"behaviour-cloned start: {cfg.bc_init_steps} steps, NLL {nll:.3f}")
+                tqdm.write(f"behaviour-cloned start: {cfg.bc_init_steps} steps, MSE {mse:.4f}")
         if cfg.dagger_init_iterations:
             history = dagger_start(agent, task, env_kwargs, cfg, transform, progress)
             (run_dir / "dagger_start.json").write_text(json.dumps(history, indent=1) + "\n")
