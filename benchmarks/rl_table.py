@@ -50,20 +50,36 @@ def sweep_markers(option: str) -> tuple[str, str]:
 
 
 HELD_OUT_SEED = 1000
-# The reference's state-PPO figures (SR insert, or SR success where a task has no insert flag),
-# by evaluation variant.
+# The reference's figures (SR insert, or SR success where a task has no insert flag), by
+# algorithm and evaluation variant.
 REFERENCE = {
-    variant_key("insertion", {"connector": "cylinder"}): 0.938,
-    variant_key("insertion", {"connector": "cuboid"}): 0.950,
-    variant_key("insertion", {"connector": "ethernet"}): 0.959,
-    variant_key("insertion", {"connector": "displayport"}): 0.929,
-    variant_key("routing", {"num_clips": 1}): 0.953,
-    variant_key("seating", {"channel": "straight"}): 0.823,
+    "ppo": {
+        variant_key("insertion", {"connector": "cylinder"}): 0.938,
+        variant_key("insertion", {"connector": "cuboid"}): 0.950,
+        variant_key("insertion", {"connector": "ethernet"}): 0.959,
+        variant_key("insertion", {"connector": "displayport"}): 0.929,
+        variant_key("routing", {"num_clips": 1}): 0.953,
+        variant_key("seating", {"channel": "straight"}): 0.823,
+    },
+    "sacfd": {variant_key("insertion", {"connector": "ethernet"}): 0.924},
 }
 
 
-def recipe(config: dict) -> str:
+def recipe(record: dict) -> str:
     """Which of the documented recipes (docs/baselines.md) trained the run."""
+    config = record["config"]
+    if record["algorithm"] == "sacfd":
+        extras = [
+            text
+            for text, used in (
+                ("memoryless expert's demonstrations", config.get("demo_expert") == "reactive"),
+                ("goal-relative inputs", config.get("inputs") == "relative"),
+                ("DAgger warm start", config.get("dagger_init_iterations", 0) > 0),
+                ("BC on relabelled replay", config.get("bc_states") == "replay"),
+            )
+            if used
+        ]
+        return "SACfD" + (f" + {', '.join(extras)}" if extras else " (SPEC defaults)")
     if config.get("dagger_init_iterations", 0) > 0:
         inputs = "goal-relative inputs" if config.get("actor_inputs") == "relative" else "state"
         return f"PPO + DAgger warm start ({inputs})"
@@ -135,7 +151,7 @@ def cells(root: Path, evaluate: bool, workers: int) -> dict:
         variant = (evaluations["public"] or evaluations["held_out"])["variant"]
         kwargs = record["env_kwargs"]
         key = (variant, kwargs.get("robot", "ur5"), kwargs.get("wire", "articulated"))
-        key += (recipe(record["config"]),)
+        key += (recipe(record),)
         grouped.setdefault(key, []).append((folder, record, evaluations))
     return grouped
 
@@ -177,7 +193,7 @@ def table(grouped: dict) -> str:
         seeds = ", ".join(str(r["config"].get("seed", 0)) for _, r, _ in runs)
         steps = sorted({r["env_steps"] for _, r, _ in runs})
         minutes = [r["wall_time_s"] / 60 for _, r, _ in runs]
-        reference = REFERENCE.get(variant)
+        reference = REFERENCE.get(runs[0][1]["algorithm"], {}).get(variant)
         lines.append(
             f"| {variant} | {robot}, {wire} | {how} | {seeds} | {checkpoint_column(runs)} | "
             f"{across(runs, 'public', 'reach_success')} | **{across(runs, 'public', metric)}** | "

@@ -53,6 +53,25 @@ def test_training_seeds_of_a_cell_are_one_row(rl_table, tmp_path):
     assert "old" not in readme.read_text() and readme.read_text().endswith("end\n")
 
 
+def test_each_algorithm_is_its_own_cell_with_its_own_reference(rl_table, tmp_path):
+    source = ROOT / "checkpoints" / "ppo_insertion_ethernet_seed0"
+    shipped_copy(source, tmp_path / "ppo", 0, 0.9)
+    shipped_copy(source, tmp_path / "sac", 0, 0.8)
+    record = json.loads((tmp_path / "sac" / RUN_FILE).read_text())
+    record["algorithm"] = "sacfd"
+    record["config"] = {"seed": 0, "demo_expert": "reactive", "bc_states": "replay"}
+    (tmp_path / "sac" / RUN_FILE).write_text(json.dumps(record))
+    readme = tmp_path / "README.md"
+    readme.write_text("<!-- rl-table -->\n<!-- /rl-table -->\n")
+    assert rl_table.main(["--checkpoints", str(tmp_path), "--readme", str(readme)]) == 0
+    rows = [line for line in readme.read_text().splitlines() if line.startswith("| insertion")]
+    (ppo,) = [r for r in rows if "| PPO" in r]
+    (sac,) = [r for r in rows if "| SACfD" in r]
+    assert "95.9 %" in ppo and "90.0 %" in ppo
+    assert "| SACfD + memoryless expert's demonstrations, BC on relabelled replay |" in sac
+    assert "92.4 %" in sac and "80.0 %" in sac
+
+
 def test_bad_input_is_a_clear_error(rl_table, tmp_path, capsys):
     with pytest.raises(SystemExit):
         rl_table.main(["--checkpoints", str(tmp_path)])

@@ -196,6 +196,17 @@ def test_sacfd_with_memoryless_demonstrations_relative_inputs_and_replay_labels(
     with torch.no_grad():
         expected = torch.tanh(actor.mean_head(actor.net(features))).double().numpy()
     np.testing.assert_allclose(policy.act(obs), expected, atol=1e-5)
+
+    # Shipped: the actor and its observation scaler alone, acting as the run does.
+    from wirecraft.rl.export import main as export_main
+
+    out = tmp_path / "shipped"
+    assert export_main([str(run_dir), "--out", str(out), "--command", "wirecraft train"]) == 0
+    full = (run_dir / "checkpoints/agent_10.pt").stat().st_size
+    assert (out / "checkpoints/agent_10.pt").stat().st_size < full / 3
+    np.testing.assert_array_equal(load_policy(out, venv).act(obs), policy.act(obs))
+    with pytest.raises(ValueError, match="shipped policy"):
+        train("sacfd", "insertion", SHORT, out, 40, progress=False, resume=True)
     venv.close()
 
 

@@ -1,5 +1,5 @@
-"""A state-PPO policy to ship: the actor of one checkpoint and the run's record, small enough
-for the repository (``checkpoints/`` holds the reference cells; checkpoints/README.md).
+"""A state policy (PPO or SACfD) to ship: the actor of one checkpoint and the run's record,
+small enough for the repository (``checkpoints/`` holds the reference cells; checkpoints/README.md).
 
     python -m wirecraft.rl.export RUN --checkpoint model_39.pt --out checkpoints/NAME \\
         --command "wirecraft train ppo ..." --evaluation public.json --evaluation heldout.json
@@ -12,8 +12,9 @@ choice (``shipped.selection``: validation seed, criterion, each candidate's figu
 The folder is a run directory that ``wirecraft eval --policy`` and ``load_policy`` read as any
 other: ``wirecraft_rl.json`` (the run's record, with the shipped checkpoint as its only and
 latest one, and ``shipped``: where it came from, the training command and the evaluations'
-metrics), ``checkpoints/model_<iteration>.pt`` holding the actor alone (about 250 KB against
-1.4 MB with the critic and the optimizer), so it cannot be resumed, and the run's
+metrics), the checkpoint holding the actor alone (``ACTOR_KEYS``; a PPO ``model_<iteration>.pt``
+is about 250 KB against 1.4 MB with the critic and the optimizer), so it cannot be resumed,
+and the run's
 ``progress.csv`` (its learning curve; ``benchmarks/rl_table.py --curves`` plots it).
 """
 
@@ -35,6 +36,12 @@ from wirecraft.rl.common import (
 )
 
 SHIPPED_METRICS = ("success", "reach_success", "insert_success")
+# What a shipped checkpoint keeps of each algorithm's: the actor (and SACfD's observation
+# scaler, which skrl keeps beside it).
+ACTOR_KEYS = {
+    "ppo": ("actor_state_dict", "iter", "infos"),
+    "sacfd": ("policy", "observation_preprocessor"),
+}
 
 
 def run_selection(document: dict, run_dir: Path, where: str = "the selection") -> tuple[dict, str]:
@@ -80,8 +87,11 @@ def export_policy(
 
     run_dir, out = Path(run_dir), Path(out)
     run = read_run(run_dir)
-    if run["algorithm"] != "ppo":
-        raise ValueError(f"{run_dir}: only state PPO runs are exported, not {run['algorithm']}")
+    if run["algorithm"] not in ACTOR_KEYS:
+        raise ValueError(
+            f"{run_dir}: only {' and '.join(ACTOR_KEYS)} runs are exported, not "
+            f"{run['algorithm']}"
+        )
     if out.exists():
         raise ValueError(f"{out} exists: give a new folder")
     chosen = None
@@ -122,7 +132,7 @@ def export_policy(
     }
     if chosen is not None:
         record["shipped"]["selection"] = chosen
-    actor = {key: saved[key] for key in ("actor_state_dict", "iter", "infos") if key in saved}
+    actor = {key: saved[key] for key in ACTOR_KEYS[run["algorithm"]] if key in saved}
     with folder_built_beside(out, "export") as staging:
         (staging / CHECKPOINT_DIR).mkdir(parents=True)
         torch.save(actor, staging / name)
@@ -134,9 +144,11 @@ def export_policy(
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m wirecraft.rl.export", description=__doc__)
-    parser.add_argument("run", help="a state PPO run directory")
+    parser.add_argument("run", help="a state PPO or SACfD run directory")
     parser.add_argument("--out", required=True, help="the new folder")
-    parser.add_argument("--checkpoint", default=None, help="model_N.pt (default: the latest)")
+    parser.add_argument(
+        "--checkpoint", default=None, help="model_N.pt or agent_N.pt (default: the latest)"
+    )
     parser.add_argument("--command", default=None, help="the command that trained the run")
     parser.add_argument(
         "--evaluation", action="append", default=[], help="a wirecraft eval --json document"
