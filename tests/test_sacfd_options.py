@@ -238,3 +238,32 @@ def test_dagger_start_runs_expert_then_actor_waves_and_fits_the_labels(tmp_path)
     assert [h["labels"] for h in history] == [12, 24]  # 2 environments x 6 steps per wave
     assert {"success", "reach", "insert"} <= set(history[0])
     assert actor_error() < 0.25 * before
+
+
+def test_critic_warmup_holds_the_actor_while_the_critics_learn(tmp_path):
+    def params(model):
+        return [p.detach().clone() for p in model.parameters()]
+
+    def changed(before, model) -> bool:
+        return any(not torch.equal(a, b) for a, b in zip(before, model.parameters(), strict=True))
+
+    no_bc = {"bc_weight_start": 0.0, "bc_weight_end": 0.0, "hidden_dims": (8,), "batch_size": 8}
+    for warmup, actor_moves in ((0, True), (160, False)):
+        cfg = SACfDConfig(critic_warmup_steps=warmup, warmup_steps=0, **no_bc)
+        agent, memory = _agent(cfg, 3, 1, tmp_path)
+        agent.init()
+        generator = torch.Generator().manual_seed(1)
+        for _ in range(8):
+            memory.add_samples(
+                observations=torch.randn(2, 3, generator=generator),
+                next_observations=torch.randn(2, 3, generator=generator),
+                actions=torch.rand(2, 1, generator=generator) * 2 - 1,
+                rewards=torch.randn(2, 1, generator=generator),
+                terminated=torch.zeros(2, 1, dtype=torch.bool),
+            )
+        actor, critic = params(agent.policy), params(agent.critic_1)
+        agent.update(timestep=79, timesteps=100)  # 79 vector steps x 2 envs < 160
+        assert changed(critic, agent.critic_1)
+        assert changed(actor, agent.policy) == actor_moves
+        agent.update(timestep=80, timesteps=100)  # 160 env steps after the first update
+        assert changed(actor, agent.policy)

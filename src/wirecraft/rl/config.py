@@ -272,7 +272,9 @@ class SACfDConfig:
     learn_entropy: bool = True
     target_entropy: float = -7.0
     initial_alpha: float = 0.1
-    reward_scale: float = 0.01
+    # The reference's 0.01 applied to Isaac Lab's rewards, which its reward manager weights by
+    # the step period (PPOConfig.reward_scale): the same scale here is 0.01 of a period.
+    reward_scale: float = 0.01 * CONTROL_PERIOD
     obs_normalization: bool = True  # skrl's RunningStandardScaler
     demo_transitions: int = 150_000
     demo_success_only: bool = True  # keep only the expert's successful episodes
@@ -301,6 +303,11 @@ class SACfDConfig:
     dagger_init_iterations: int = 0
     dagger_init_epochs: int = 15
     dagger_init_envs: int = 64
+    # Not in the reference: for this many env steps after the first update (of each start or
+    # resumption), SAC updates the critics and the temperature but not the actor, which the BC
+    # term alone moves, so that the actor's first SAC steps follow critics that have learnt
+    # its behaviour's values rather than their random initial ones.  0: off.
+    critic_warmup_steps: int = 0
     checkpoint_every_steps: int = 50_000
     log_every_steps: int = 10_000
     seed: int = 0
@@ -324,6 +331,7 @@ class SACfDConfig:
         _int_at_least(owner, "dagger_init_iterations", self.dagger_init_iterations, 0)
         _int_at_least(owner, "dagger_init_epochs", self.dagger_init_epochs, 1)
         _int_at_least(owner, "dagger_init_envs", self.dagger_init_envs, 1)
+        _int_at_least(owner, "critic_warmup_steps", self.critic_warmup_steps, 0)
         for name in ("num_envs", "total_steps", "batch_size", "replay_per_env"):
             _int_at_least(owner, name, getattr(self, name), 1)
         for name in ("warmup_steps", "bc_anneal_start", "seed", "threads"):

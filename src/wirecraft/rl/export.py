@@ -89,8 +89,7 @@ def export_policy(
     run = read_run(run_dir)
     if run["algorithm"] not in ACTOR_KEYS:
         raise ValueError(
-            f"{run_dir}: only {' and '.join(ACTOR_KEYS)} runs are exported, not "
-            f"{run['algorithm']}"
+            f"{run_dir}: only {' and '.join(ACTOR_KEYS)} runs are exported, not {run['algorithm']}"
         )
     if out.exists():
         raise ValueError(f"{out} exists: give a new folder")

@@ -162,6 +162,16 @@ class _EntropyState(nn.Module):
         self.register_buffer("log_alpha", log_alpha)
 
 
+class _NoStep:
+    """An optimizer that changes nothing (SACfDConfig.critic_warmup_steps)."""
+
+    def zero_grad(self) -> None:
+        pass
+
+    def step(self) -> None:
+        pass
+
+
 class SACfD(SAC):
     """skrl SAC with a demonstration buffer and an annealed BC term (see the module doc)."""
 
@@ -204,7 +214,16 @@ class SACfD(SAC):
         )
 
     def update(self, *, timestep: int, timesteps: int) -> None:
-        super().update(timestep=timestep, timesteps=timesteps)
+        held = (
+            timestep - self.cfg.learning_starts
+        ) * self.num_envs < self.sacfd.critic_warmup_steps
+        optimizer = self.policy_optimizer
+        if held:  # skrl's update computes the actor's SAC step; nothing applies it
+            self.policy_optimizer = _NoStep()
+        try:
+            super().update(timestep=timestep, timesteps=timesteps)
+        finally:
+            self.policy_optimizer = optimizer
         if self.cfg.learn_entropy:
             self.log_entropy_coefficient.data.clamp_(max=math.log(10.0))
         weight = self.sacfd.bc_weight(timestep * self.num_envs)
