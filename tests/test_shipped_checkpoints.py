@@ -31,7 +31,7 @@ def test_a_shipped_policy_succeeds_as_recorded(folder):
 
     record = json.loads((folder / RUN_FILE).read_text())
     shipped = record["shipped"]
-    assert shipped["train_command"].startswith("wirecraft train ppo")
+    assert shipped["train_command"].startswith(("wirecraft train ppo", "wirecraft train sacfd"))
     public = [e for e in shipped["evaluations"] if e["held_out_seed"] is None]
     assert public
     # the task's headline flag: insertion's insert_success, the others' success
