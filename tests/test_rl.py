@@ -61,7 +61,9 @@ def test_configs_carry_the_reference_defaults_and_reject_bad_values():
     assert (vision.num_envs, vision.max_iterations, vision.queries_per_camera) == (64, 600, 8)
     sac = SACfDConfig()
     assert (sac.batch_size, sac.replay_per_env, sac.warmup_steps) == (256, 8000, 5000)
-    assert (sac.target_entropy, sac.initial_alpha, sac.reward_scale) == (-7.0, 0.1, 0.01)
+    assert (sac.target_entropy, sac.initial_alpha) == (-7.0, 0.1)
+    # the reference's 0.01, applied to Isaac Lab's rewards weighted by the 1/60 s step period
+    assert sac.reward_scale == pytest.approx(0.01 / 60)
     with pytest.raises(ValueError, match="clip_param"):
         PPOConfig(clip_param=1.5)
     with pytest.raises(ValueError, match="actor_hidden_dims"):
