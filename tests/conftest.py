@@ -72,3 +72,22 @@ def saved_actor_means():
         return np.clip(x @ w.T + b, -1, 1)
 
     return forward
+
+
+@pytest.fixture
+def sac_tiny() -> dict:
+    """SACfD settings for a run of a few dozen env steps on 6-step insertion episodes: two
+    environments, small networks, updates and checkpoints within the run."""
+    return {
+        "num_envs": 2,
+        "hidden_dims": (16, 16),
+        "batch_size": 16,
+        "replay_per_env": 64,
+        "warmup_steps": 8,
+        "demo_transitions": 24,
+        "demo_success_only": False,  # 6-step episodes: the expert cannot finish
+        "checkpoint_every_steps": 20,
+        "log_every_steps": 10,
+        "updates_per_env_step": 0.5,
+        "threads": 1,
+    }

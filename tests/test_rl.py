@@ -488,23 +488,11 @@ def test_source_commit_names_the_checkout_and_marks_uncommitted_changes(tmp_path
 
 
 @pytest.mark.slow
-def test_sacfd_trains_with_demonstrations_saves_loads_and_resumes(tmp_path):
+def test_sacfd_trains_with_demonstrations_saves_loads_and_resumes(tmp_path, sac_tiny):
     import torch
 
     run_dir = tmp_path / "sac"
-    settings = {
-        "num_envs": 2,
-        "hidden_dims": (16, 16),
-        "batch_size": 16,
-        "replay_per_env": 64,
-        "warmup_steps": 8,
-        "demo_transitions": 24,
-        "demo_success_only": False,  # 6-step episodes: the expert cannot finish
-        "checkpoint_every_steps": 20,
-        "log_every_steps": 10,
-        "updates_per_env_step": 0.5,
-        "threads": 1,
-    }
+    settings = sac_tiny
     summary = train("sacfd", "insertion", SHORT, run_dir, 20, overrides=settings, progress=False)
     assert summary["env_steps"] == 20 and summary["latest_checkpoint"] == "checkpoints/agent_10.pt"
     demos = torch.load(run_dir / "demos.pt", weights_only=True)

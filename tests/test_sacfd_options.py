@@ -149,20 +149,10 @@ def test_behaviour_cloned_start_recovers_a_known_policy_and_its_residual_spread(
 
 
 @pytest.mark.slow
-def test_sacfd_with_memoryless_demonstrations_relative_inputs_and_replay_labels(tmp_path):
+def test_sacfd_with_memoryless_demonstrations_relative_inputs_and_replay_labels(tmp_path, sac_tiny):
     run_dir = tmp_path / "sac"
     settings = {
-        "num_envs": 2,
-        "hidden_dims": (16, 16),
-        "batch_size": 16,
-        "replay_per_env": 64,
-        "warmup_steps": 8,
-        "demo_transitions": 24,
-        "demo_success_only": False,  # 6-step episodes: the expert cannot finish
-        "checkpoint_every_steps": 20,
-        "log_every_steps": 10,
-        "updates_per_env_step": 0.5,
-        "threads": 1,
+        **sac_tiny,
         "demo_expert": "reactive",
         "inputs": "relative",
         "bc_states": "replay",
