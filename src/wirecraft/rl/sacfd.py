@@ -474,20 +474,16 @@ def dagger_start(
         sync_envs=False,
     )
     expert = REACTIVE_EXPERTS.get(task)(venv)
-
-    def act(states: np.ndarray) -> np.ndarray:
-        x = torch.as_tensor(transform(states), dtype=torch.float32)
-        inputs = {"observations": agent._observation_preprocessor(x), "states": None}
-        with torch.no_grad():
-            _, outputs = agent.policy.act(inputs, role="policy")
-        return np.clip(outputs["mean_actions"].numpy().astype(np.float64), -1.0, 1.0)
-
+    state_dim = int(venv.single_observation_space.shape[0])
+    learner = SACPolicy(
+        agent.policy, agent._observation_preprocessor, expert.CONTROL, state_dim, transform
+    )
     rng = np.random.default_rng(cfg.seed)
     waves = [0.5**k for k in range(cfg.dagger_init_iterations)] + [0.0]
     observations, labels, history = [], [], []
     try:
         for k, beta in enumerate(waves):
-            wave = run_wave(venv, expert, act, beta, cfg.seed + 20_000 + k, rng)
+            wave = run_wave(venv, expert, learner.act, beta, cfg.seed + 20_000 + k, rng)
             states = wave["states"].reshape(-1, wave["states"].shape[-1])
             observations.append(torch.as_tensor(transform(states), dtype=torch.float32))
             labels.append(torch.as_tensor(wave["labels"].reshape(len(states), -1)).float())
