@@ -32,6 +32,9 @@ def test_options_reject_unknown_values():
         {"inputs": "pixels"},
         {"bc_states": "expert"},
         {"bc_init_steps": -1},
+        {"max_log_std": -6.0},
+        {"max_log_std": float("nan")},
+        {"actor_learning_rate": -1.0},
     ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             SACfDConfig(**bad)
@@ -257,3 +260,48 @@ def test_critic_warmup_holds_the_actor_while_the_critics_learn(tmp_path):
         assert changed(actor, agent.policy) == actor_moves
         agent.update(timestep=80, timesteps=100)  # 160 env steps after the first update
         assert changed(actor, agent.policy)
+
+
+def test_max_log_std_bounds_the_spread_of_the_actors_samples(tmp_path):
+    cfg = SACfDConfig(max_log_std=-3.0, hidden_dims=(8,))
+    agent, _ = _agent(cfg, 3, 2, tmp_path)
+    with torch.no_grad():
+        agent.policy.log_std_head.bias.fill_(1.0)  # asks for a spread of e, 55 times the clip
+    obs = torch.zeros(20000, 3)
+    actions, outputs = agent.policy.act({"observations": obs, "states": None}, role="policy")
+    spread = (actions - outputs["mean_actions"]).std(dim=0)
+    assert torch.allclose(spread, torch.full((2,), np.exp(-3.0)), rtol=0.05)
+
+
+def test_actor_learning_rate_sets_the_size_of_the_actors_steps_only(tmp_path):
+    lr_actor, lr_critics = 1e-6, 1e-3
+    cfg = SACfDConfig(
+        actor_learning_rate=lr_actor,
+        learning_rate=lr_critics,
+        warmup_steps=0,
+        hidden_dims=(8,),
+        batch_size=8,
+    )
+    agent, memory = _agent(cfg, 3, 1, tmp_path)
+    agent.init()
+    generator = torch.Generator().manual_seed(1)
+    for _ in range(8):
+        memory.add_samples(
+            observations=torch.randn(2, 3, generator=generator),
+            next_observations=torch.randn(2, 3, generator=generator),
+            actions=torch.rand(2, 1, generator=generator) * 2 - 1,
+            rewards=torch.randn(2, 1, generator=generator),
+            terminated=torch.zeros(2, 1, dtype=torch.bool),
+        )
+    actor = [p.detach().clone() for p in agent.policy.parameters()]
+    critic = [p.detach().clone() for p in agent.critic_1.parameters()]
+    agent.update(timestep=1, timesteps=10)
+
+    def largest_move(before, model) -> float:
+        after = model.parameters()
+        return max(float((a - b.detach()).abs().max()) for a, b in zip(before, after, strict=True))
+
+    # Adam moves each weight by at most about its learning rate per step.
+    steps = 2 * cfg.gradient_steps_per_vector_step  # SAC's and the BC term's
+    assert 0 < largest_move(actor, agent.policy) <= 1.01 * lr_actor * steps
+    assert largest_move(critic, agent.critic_1) > 10 * lr_actor * steps

@@ -20,6 +20,7 @@ from typing import Any, ClassVar
 # reference weights (reach 15 ... seated 1000) assume it.  Our environment returns the plain
 # weighted sum per step, so PPO scales it by the control period (1/60 s) to match.
 CONTROL_PERIOD = 1.0 / 60.0
+MIN_LOG_STD = -5.0  # the SAC actor's lower clip of its log std
 
 
 def _positive(owner: str, name: str, value: float) -> None:
@@ -308,6 +309,12 @@ class SACfDConfig:
     # term alone moves, so that the actor's first SAC steps follow critics that have learnt
     # its behaviour's values rather than their random initial ones.  0: off.
     critic_warmup_steps: int = 0
+    # Not in the reference: the actor's Adam learning rate (its SAC and BC steps); 0: the
+    # critics' learning_rate.
+    actor_learning_rate: float = 0.0
+    # The actor's log std is clipped to [-5, max_log_std]; lowering it bounds how far SAC's
+    # samples stray from the mean.
+    max_log_std: float = 2.0
     checkpoint_every_steps: int = 50_000
     log_every_steps: int = 10_000
     seed: int = 0
@@ -332,6 +339,11 @@ class SACfDConfig:
         _int_at_least(owner, "dagger_init_epochs", self.dagger_init_epochs, 1)
         _int_at_least(owner, "dagger_init_envs", self.dagger_init_envs, 1)
         _int_at_least(owner, "critic_warmup_steps", self.critic_warmup_steps, 0)
+        _non_negative(owner, "actor_learning_rate", self.actor_learning_rate)
+        if not MIN_LOG_STD < self.max_log_std <= 2.0:
+            raise ValueError(
+                f"{owner}: max_log_std must be in ({MIN_LOG_STD}, 2], got {self.max_log_std!r}"
+            )
         for name in ("num_envs", "total_steps", "batch_size", "replay_per_env"):
             _int_at_least(owner, name, getattr(self, name), 1)
         for name in ("warmup_steps", "bc_anneal_start", "seed", "threads"):

@@ -47,10 +47,9 @@ from wirecraft.rl.common import (
     state_batch,
     summarize,
 )
-from wirecraft.rl.config import SACfDConfig
+from wirecraft.rl.config import MIN_LOG_STD, SACfDConfig
 
 TRANSITION_NAMES = ("observations", "actions", "rewards", "next_observations", "terminated")
-LOG_STD_RANGE = (-5.0, 2.0)
 
 
 def _mlp(inputs: int, hidden: tuple[int, ...], activation: str) -> nn.Sequential:
@@ -67,7 +66,9 @@ class GaussianActor(GaussianMixin, Model):
     """Tanh-bounded mean and a state-dependent log std (skrl samples the Gaussian; the
     controller clips actions to [-1, 1])."""
 
-    def __init__(self, observation_space, action_space, hidden, activation, device="cpu"):
+    def __init__(
+        self, observation_space, action_space, hidden, activation, max_log_std=2.0, device="cpu"
+    ):
         Model.__init__(
             self, observation_space=observation_space, action_space=action_space, device=device
         )
@@ -75,8 +76,8 @@ class GaussianActor(GaussianMixin, Model):
             self,
             clip_actions=False,
             clip_log_std=True,
-            min_log_std=LOG_STD_RANGE[0],
-            max_log_std=LOG_STD_RANGE[1],
+            min_log_std=MIN_LOG_STD,
+            max_log_std=max_log_std,
             reduction="sum",
         )
         self.net = _mlp(self.num_observations, hidden, activation)
@@ -108,7 +109,9 @@ def make_models(observation_space, action_space, cfg: SACfDConfig) -> dict[str, 
         return QCritic(observation_space, action_space, cfg.hidden_dims, cfg.activation)
 
     return {
-        "policy": GaussianActor(observation_space, action_space, cfg.hidden_dims, cfg.activation),
+        "policy": GaussianActor(
+            observation_space, action_space, cfg.hidden_dims, cfg.activation, cfg.max_log_std
+        ),
         "critic_1": critic(),
         "critic_2": critic(),
         "target_critic_1": critic(),
@@ -275,7 +278,11 @@ def agent_config(cfg: SACfDConfig, observation_space, run_dir: Path) -> SAC_CFG:
         batch_size=cfg.batch_size,
         discount_factor=cfg.gamma,
         polyak=cfg.tau,
-        learning_rate=cfg.learning_rate,
+        learning_rate=(
+            cfg.actor_learning_rate or cfg.learning_rate,
+            cfg.learning_rate,
+            cfg.learning_rate,
+        ),
         random_timesteps=0,
         learning_starts=math.ceil(cfg.warmup_steps / per_vector_step),
         grad_norm_clip=0,
@@ -447,7 +454,7 @@ def behaviour_clone_start(agent: SACfD, demos: dict, steps: int, seed: int) -> f
         )
         head = agent.policy.log_std_head
         head.weight.zero_()
-        head.bias.copy_(squared.mean(0).sqrt().clamp(min=math.exp(LOG_STD_RANGE[0])).log())
+        head.bias.copy_(squared.mean(0).sqrt().clamp(min=math.exp(MIN_LOG_STD)).log())
     return float(squared.mean())
 
 
@@ -715,7 +722,7 @@ def load_sac_policy(run: dict, checkpoint: Path) -> SACPolicy:
     width = actor_input_dim(cfg.inputs, obs_dim)
     obs_space = gym.spaces.Box(-np.inf, np.inf, (width,), np.float64)
     act_space = gym.spaces.Box(-1.0, 1.0, (action_dim,), np.float32)
-    actor = GaussianActor(obs_space, act_space, cfg.hidden_dims, cfg.activation)
+    actor = GaussianActor(obs_space, act_space, cfg.hidden_dims, cfg.activation, cfg.max_log_std)
     saved = torch.load(checkpoint, map_location="cpu", weights_only=False)
     actor.load_state_dict(saved["policy"])
     scaler = None
