@@ -76,6 +76,19 @@ def recipe(record: dict) -> str:
                 ("goal-relative inputs", config.get("inputs") == "relative"),
                 ("DAgger warm start", config.get("dagger_init_iterations", 0) > 0),
                 ("BC on relabelled replay", config.get("bc_states") == "replay"),
+                (
+                    f"BC weight {config.get('bc_weight_start')}",
+                    config.get("bc_weight_start", 2.5) != 2.5,
+                ),
+                ("critic warm-up", config.get("critic_warmup_steps", 0) > 0),
+                (
+                    f"fixed temperature {config.get('initial_alpha')}",
+                    config.get("learn_entropy") is False,
+                ),
+                (
+                    f"log std <= {config.get('max_log_std')}",
+                    config.get("max_log_std", 2.0) < 2.0,
+                ),
             )
             if used
         ]

@@ -60,6 +60,7 @@ def test_each_algorithm_is_its_own_cell_with_its_own_reference(rl_table, tmp_pat
     record = json.loads((tmp_path / "sac" / RUN_FILE).read_text())
     record["algorithm"] = "sacfd"
     record["config"] = {"seed": 0, "demo_expert": "reactive", "bc_states": "replay"}
+    record["config"].update(learn_entropy=False, initial_alpha=0.001, max_log_std=-3.0)
     (tmp_path / "sac" / RUN_FILE).write_text(json.dumps(record))
     readme = tmp_path / "README.md"
     readme.write_text("<!-- rl-table -->\n<!-- /rl-table -->\n")
@@ -68,7 +69,10 @@ def test_each_algorithm_is_its_own_cell_with_its_own_reference(rl_table, tmp_pat
     (ppo,) = [r for r in rows if "| PPO" in r]
     (sac,) = [r for r in rows if "| SACfD" in r]
     assert "95.9 %" in ppo and "90.0 %" in ppo
-    assert "| SACfD + memoryless expert's demonstrations, BC on relabelled replay |" in sac
+    assert (
+        "| SACfD + memoryless expert's demonstrations, BC on relabelled replay, "
+        "fixed temperature 0.001, log std <= -3.0 |" in sac
+    )
     assert "92.4 %" in sac and "80.0 %" in sac
 
 
