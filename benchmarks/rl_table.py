@@ -31,7 +31,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +45,8 @@ from wirecraft.rl import RUN_FILE
 from wirecraft.rl.common import PROGRESS_FILE, ProgressTable
 
 MARKERS = ("<!-- rl-table -->", "<!-- /rl-table -->")
+PANELS_PER_ROW = 4  # of the curves' figure
+TITLE_WIDTH = 60  # characters per line of a panel's title
 
 
 def sweep_markers(option: str) -> tuple[str, str]:
@@ -233,8 +237,14 @@ def plot_curves(grouped: dict, out: Path) -> list[Path]:
     panels = {key: runs for key, runs in grouped.items() if any(curves[f] for f, _, _ in runs)}
     if not panels:
         raise ValueError(f"no shipped folder has a {PROGRESS_FILE}: no curve to plot")
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.6), squeeze=False)
-    for ax, ((variant, robot, wire, how), runs) in zip(axes[0], panels.items(), strict=True):
+    columns = min(PANELS_PER_ROW, len(panels))
+    rows_of_panels = math.ceil(len(panels) / columns)
+    fig, axes = plt.subplots(
+        rows_of_panels, columns, figsize=(4.5 * columns, 3.9 * rows_of_panels), squeeze=False
+    )
+    for ax in axes.flat[len(panels) :]:
+        ax.set_visible(False)
+    for ax, ((variant, robot, wire, how), runs) in zip(axes.flat, panels.items(), strict=False):
         for folder, record, evaluations in runs:
             rows = curves[folder]
             if not rows:
@@ -247,12 +257,14 @@ def plot_curves(grouped: dict, out: Path) -> list[Path]:
                 [100 * r[key] for r in kept],
                 label=f"seed {record['config'].get('seed', 0)}",
             )
-        ax.set_title(f"{variant}\n{robot}, {wire}; {how}", fontsize=8)
+        title = textwrap.fill(f"{robot}, {wire}; {how}", TITLE_WIDTH)
+        ax.set_title(f"{variant}\n{title}", fontsize=8)
         ax.set_xlabel("env steps (M)")
         ax.set_ylim(-2, 102)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    axes[0][0].set_ylabel("training episodes succeeding (%)")
+    for row in axes:
+        row[0].set_ylabel("training episodes succeeding (%)")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
