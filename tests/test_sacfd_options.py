@@ -125,6 +125,23 @@ def test_bc_term_draws_demo_pairs_or_own_states_labelled_by_the_labeller(tmp_pat
     assert (obs == 1).all() and (labels == 0.5).all()
 
 
+def _agent_with_replay(cfg: SACfDConfig, tmp_path) -> SACfD:
+    """An initialised agent (3-d states, 1-d actions) whose replay holds 16 random
+    transitions, enough for updates."""
+    agent, memory = _agent(cfg, 3, 1, tmp_path)
+    agent.init()
+    generator = torch.Generator().manual_seed(1)
+    for _ in range(8):
+        memory.add_samples(
+            observations=torch.randn(2, 3, generator=generator),
+            next_observations=torch.randn(2, 3, generator=generator),
+            actions=torch.rand(2, 1, generator=generator) * 2 - 1,
+            rewards=torch.randn(2, 1, generator=generator),
+            terminated=torch.zeros(2, 1, dtype=torch.bool),
+        )
+    return agent
+
+
 def test_behaviour_cloned_start_recovers_a_known_policy_and_its_residual_spread(tmp_path):
     """Demonstrations of a known deterministic policy: the fit's mean approaches it, and its
     spread is the fit's residual, per action dimension, in every state."""
@@ -243,17 +260,7 @@ def test_critic_warmup_holds_the_actor_while_the_critics_learn(tmp_path):
     no_bc = {"bc_weight_start": 0.0, "bc_weight_end": 0.0, "hidden_dims": (8,), "batch_size": 8}
     for warmup, actor_moves in ((0, True), (160, False)):
         cfg = SACfDConfig(critic_warmup_steps=warmup, warmup_steps=0, **no_bc)
-        agent, memory = _agent(cfg, 3, 1, tmp_path)
-        agent.init()
-        generator = torch.Generator().manual_seed(1)
-        for _ in range(8):
-            memory.add_samples(
-                observations=torch.randn(2, 3, generator=generator),
-                next_observations=torch.randn(2, 3, generator=generator),
-                actions=torch.rand(2, 1, generator=generator) * 2 - 1,
-                rewards=torch.randn(2, 1, generator=generator),
-                terminated=torch.zeros(2, 1, dtype=torch.bool),
-            )
+        agent = _agent_with_replay(cfg, tmp_path)
         actor, critic = params(agent.policy), params(agent.critic_1)
         agent.update(timestep=79, timesteps=100)  # 79 vector steps x 2 envs < 160
         assert changed(critic, agent.critic_1)
@@ -282,17 +289,7 @@ def test_actor_learning_rate_sets_the_size_of_the_actors_steps_only(tmp_path):
         hidden_dims=(8,),
         batch_size=8,
     )
-    agent, memory = _agent(cfg, 3, 1, tmp_path)
-    agent.init()
-    generator = torch.Generator().manual_seed(1)
-    for _ in range(8):
-        memory.add_samples(
-            observations=torch.randn(2, 3, generator=generator),
-            next_observations=torch.randn(2, 3, generator=generator),
-            actions=torch.rand(2, 1, generator=generator) * 2 - 1,
-            rewards=torch.randn(2, 1, generator=generator),
-            terminated=torch.zeros(2, 1, dtype=torch.bool),
-        )
+    agent = _agent_with_replay(cfg, tmp_path)
     actor = [p.detach().clone() for p in agent.policy.parameters()]
     critic = [p.detach().clone() for p in agent.critic_1.parameters()]
     agent.update(timestep=1, timesteps=10)
