@@ -43,6 +43,7 @@ from wirecraft.evaluation.protocol import aggregate_runs, run_evaluation
 from wirecraft.evaluation.seeds import variant_key
 from wirecraft.rl import RUN_FILE
 from wirecraft.rl.common import PROGRESS_FILE, ProgressTable
+from wirecraft.rl.config import SACfDConfig
 
 MARKERS = ("<!-- rl-table -->", "<!-- /rl-table -->")
 PANELS_PER_ROW = 4  # of the curves' figure
@@ -73,6 +74,11 @@ def recipe(record: dict) -> str:
     """Which of the documented recipes (docs/baselines.md) trained the run."""
     config = record["config"]
     if record["algorithm"] == "sacfd":
+
+        def changed(option: str) -> bool:  # from SACfDConfig's default
+            default = getattr(SACfDConfig, option)
+            return config.get(option, default) != default
+
         extras = [
             text
             for text, used in (
@@ -80,19 +86,10 @@ def recipe(record: dict) -> str:
                 ("goal-relative inputs", config.get("inputs") == "relative"),
                 ("DAgger warm start", config.get("dagger_init_iterations", 0) > 0),
                 ("BC on relabelled replay", config.get("bc_states") == "replay"),
-                (
-                    f"BC weight {config.get('bc_weight_start')}",
-                    config.get("bc_weight_start", 2.5) != 2.5,
-                ),
-                ("critic warm-up", config.get("critic_warmup_steps", 0) > 0),
-                (
-                    f"fixed temperature {config.get('initial_alpha')}",
-                    config.get("learn_entropy") is False,
-                ),
-                (
-                    f"log std <= {config.get('max_log_std')}",
-                    config.get("max_log_std", 2.0) < 2.0,
-                ),
+                (f"BC weight {config.get('bc_weight_start')}", changed("bc_weight_start")),
+                ("critic warm-up", changed("critic_warmup_steps")),
+                (f"fixed temperature {config.get('initial_alpha')}", changed("learn_entropy")),
+                (f"log std <= {config.get('max_log_std')}", changed("max_log_std")),
             )
             if used
         ]

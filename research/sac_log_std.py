@@ -16,7 +16,9 @@ from pathlib import Path
 
 import torch
 
+from wirecraft.rl import run_checkpoints
 from wirecraft.rl.common import read_run
+from wirecraft.rl.config import config_from_dict
 from wirecraft.rl.sacfd import load_sac_policy
 
 
@@ -25,21 +27,19 @@ def main() -> None:
     parser.add_argument("run", type=Path, help="a wirecraft train sacfd run directory")
     args = parser.parse_args()
     run = read_run(args.run)
+    cfg = config_from_dict("sacfd", run["config"])
     demos = torch.load(args.run / "demos.pt", map_location="cpu", weights_only=False)
     states = demos["observations"][:20000].float()
-    checkpoints = sorted(
-        (args.run / "checkpoints").glob("agent_*.pt"), key=lambda p: int(p.stem.split("_")[1])
-    )
-    clip = run["config"].get("max_log_std", 2.0)
+    clip = cfg.max_log_std
     print(f"| checkpoint | env steps | log std asked, median per dimension | share above {clip} |")
     print("|---|---:|---|---:|")
-    for path in checkpoints:
+    for number, path in run_checkpoints(args.run)[0]:
         policy = load_sac_policy(run, path)
         with torch.no_grad():
             x = policy.scaler(states) if policy.scaler is not None else states
             log_std = policy.actor.log_std_head(policy.actor.net(x))
         medians = ", ".join(f"{v:.2f}" for v in log_std.median(dim=0).values.tolist())
-        steps = int(path.stem.split("_")[1]) * run["config"]["num_envs"]
+        steps = number * cfg.num_envs
         above = float((log_std > clip).float().mean())
         print(f"| {path.stem} | {steps:,} | {medians} | {above:.0%} |")
 

@@ -20,7 +20,8 @@ from typing import Any, ClassVar
 # reference weights (reach 15 ... seated 1000) assume it.  Our environment returns the plain
 # weighted sum per step, so PPO scales it by the control period (1/60 s) to match.
 CONTROL_PERIOD = 1.0 / 60.0
-MIN_LOG_STD = -5.0  # the SAC actor's lower clip of its log std
+# The SAC actor's clip of its log std: MAX_LOG_STD is the widest SACfDConfig.max_log_std allows.
+MIN_LOG_STD, MAX_LOG_STD = -5.0, 2.0
 
 
 def _positive(owner: str, name: str, value: float) -> None:
@@ -314,7 +315,7 @@ class SACfDConfig:
     actor_learning_rate: float = 0.0
     # The actor's log std is clipped to [-5, max_log_std]; lowering it bounds how far SAC's
     # samples stray from the mean.
-    max_log_std: float = 2.0
+    max_log_std: float = MAX_LOG_STD
     checkpoint_every_steps: int = 50_000
     log_every_steps: int = 10_000
     seed: int = 0
@@ -340,9 +341,10 @@ class SACfDConfig:
         _int_at_least(owner, "dagger_init_envs", self.dagger_init_envs, 1)
         _int_at_least(owner, "critic_warmup_steps", self.critic_warmup_steps, 0)
         _non_negative(owner, "actor_learning_rate", self.actor_learning_rate)
-        if not MIN_LOG_STD < self.max_log_std <= 2.0:
+        if not MIN_LOG_STD < self.max_log_std <= MAX_LOG_STD:
             raise ValueError(
-                f"{owner}: max_log_std must be in ({MIN_LOG_STD}, 2], got {self.max_log_std!r}"
+                f"{owner}: max_log_std must be in ({MIN_LOG_STD}, {MAX_LOG_STD}], "
+                f"got {self.max_log_std!r}"
             )
         for name in ("num_envs", "total_steps", "batch_size", "replay_per_env"):
             _int_at_least(owner, name, getattr(self, name), 1)

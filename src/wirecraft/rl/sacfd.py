@@ -47,7 +47,7 @@ from wirecraft.rl.common import (
     state_batch,
     summarize,
 )
-from wirecraft.rl.config import MIN_LOG_STD, SACfDConfig
+from wirecraft.rl.config import MAX_LOG_STD, MIN_LOG_STD, SACfDConfig
 
 TRANSITION_NAMES = ("observations", "actions", "rewards", "next_observations", "terminated")
 
@@ -67,7 +67,13 @@ class GaussianActor(GaussianMixin, Model):
     controller clips actions to [-1, 1])."""
 
     def __init__(
-        self, observation_space, action_space, hidden, activation, max_log_std=2.0, device="cpu"
+        self,
+        observation_space,
+        action_space,
+        hidden,
+        activation,
+        max_log_std=MAX_LOG_STD,
+        device="cpu",
     ):
         Model.__init__(
             self, observation_space=observation_space, action_space=action_space, device=device
